@@ -39,6 +39,9 @@ _EXPORTS: dict[str, str] = {
     "shipped": "descriptions",
     "shipped_path": "descriptions",
     "list_shipped": "descriptions",
+    "example_robot_urdf": "descriptions",
+    "pinocchio_model": "urdf",
+    "point_positions": "urdf",
     # 2D tracks in and out
     "load_tracks": "tracks",
     "save_tracks": "tracks",

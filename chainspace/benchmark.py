@@ -1,0 +1,167 @@
+"""The benchmark protocol of Wandt et al. (2017, Table 1), extended, and its markdown table.
+
+Protocol. For every sequence of a group and every camera path (``n_cameras`` per sequence, seeded):
+a weak-perspective camera orbits the subject (:func:`chainspace.synthetic.orbit_cameras`: random
+start azimuth, 10 degree sweep, random elevation in [0, 30] degrees), the subject spans 720 px of an
+image 900 px tall (:func:`chainspace.synthetic.scale_for_span`), Gaussian pixel noise is added, and
+every method reconstructs from the tracks alone with the chain's shipped rest pose as the initial
+pose (for human17: the mean pose of CMU subjects 02, 07 and 16, never subject 35). The 3D error is
+the paper's: per-frame rigid Procrustes alignment, mean joint distance, mean over frames; the
+similarity variant also aligns scale. Errors are averaged over sequences and cameras of a group.
+
+Columns: the initial pose alone (the rest pose in every frame), the rigid Tomasi-Kanade
+factorization, the literal KCS (Algorithm 1), and chainspace's default pipeline.
+
+Robot rows are produced by :mod:`chainspace.benchmark_robots`; :func:`run_benchmark` accepts extra
+row producers (``extra=[callable(noise_levels, quick) -> list[Row]]``) and prints them in the same
+table.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+import zlib
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .errors import ChainspaceError
+from .metrics import error_3d
+from .synthetic import observe, orbit_cameras, scale_for_span
+
+__all__ = ["Row", "sequence_groups", "evaluate_sequence", "run_benchmark", "format_table", "COLUMNS",
+           "IMAGE_HEIGHT_PX", "SPAN_PX"]
+
+IMAGE_HEIGHT_PX = 900
+SPAN_PX = 0.8 * IMAGE_HEIGHT_PX
+COLUMNS = ("initial pose", "rigid (Tomasi-Kanade)", "KCS (Algorithm 1)", "chainspace default")
+_METHOD = {"rigid (Tomasi-Kanade)": "rigid", "KCS (Algorithm 1)": "kcs", "chainspace default": "default"}
+
+
+@dataclass
+class Row:
+    """One table row: a sequence group at one noise level; per column (rigid mm, similarity mm, s)."""
+
+    group: str
+    noise_px: float
+    n_runs: int
+    cells: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    note: str = ""
+
+
+def sequence_groups(names: Iterable[str] | None = None, *, quick: bool = False) -> dict[str, Any]:
+    """{group: (chain, [poses (F, J, 3), ...], note)} of the groups whose data are available.
+
+    Groups: walk35 (CMU subject 35 walks), walks 02/07/16, run09 (CMU subject 09 runs), and the
+    DeepMimic jump and cartwheel. ``quick`` keeps at most 3 sequences per group.
+    """
+    from . import datasets
+
+    human = datasets.human17()
+    want = list(names) if names else ["walk35", "walk 02/07/16", "run09", "jump (DeepMimic)", "cartwheel (DeepMimic)"]
+    out: dict[str, Any] = {}
+    for g in want:
+        try:
+            if g == "walk35":
+                seqs = [datasets.cmu_walk(35, amc.stem.split("_")[1]) for _, amc in datasets.cmu_trials(35)]
+                out[g] = (human, seqs, "20 trials")
+            elif g == "walk 02/07/16":
+                seqs = [datasets.cmu_walk(s, amc.stem.split("_")[1]) for s in (2, 7, 16)
+                        for _, amc in datasets.cmu_trials(s)]
+                out[g] = (human, seqs, "rest pose made from these subjects")
+            elif g == "run09":
+                out[g] = (human, datasets.cmu09_runs(), "")
+            elif g.endswith("(DeepMimic)"):
+                chain, poses = datasets.deepmimic_clip(g.split()[0])
+                out[g] = (chain, [poses], "DeepMimic humanoid, its zero pose as initial pose")
+            else:
+                raise ChainspaceError(f"unknown sequence group {g!r}")
+        except ChainspaceError as exc:
+            if "unknown sequence group" in str(exc):
+                raise
+            continue
+        if not out.get(g, (None, []))[1]:
+            out.pop(g, None)
+        elif quick:
+            chain, seqs, note = out[g]
+            out[g] = (chain, seqs[:3], note)
+    return out
+
+
+def evaluate_sequence(poses: np.ndarray, chain: Any, *, noise_px: float, seed: int,
+                      columns: Sequence[str] = COLUMNS) -> dict[str, tuple[float, float, float]]:
+    """Errors (rigid m, similarity m, seconds) of every column on one sequence and one camera path."""
+    from .reconstruct import reconstruct
+
+    F = len(poses)
+    P = orbit_cameras(F, scale=scale_for_span(poses, SPAN_PX), seed=seed)
+    W = observe(poses, P, translations=np.array([IMAGE_HEIGHT_PX / 2] * 2), noise_px=noise_px, seed=seed + 1)
+    out = {}
+    for col in columns:
+        t0 = time.perf_counter()
+        if col == "initial pose":
+            pred = np.broadcast_to(chain.rest_pose, poses.shape)
+        else:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                pred = reconstruct(W, chain, method=_METHOD[col]).poses
+        dt = time.perf_counter() - t0
+        out[col] = (error_3d(pred, poses), error_3d(pred, poses, scale=True), dt)
+    return out
+
+
+def _seed(*parts: Any) -> int:
+    return zlib.crc32("/".join(map(str, parts)).encode()) & 0x7FFFFFFF
+
+
+def run_benchmark(
+    groups: Iterable[str] | None = None,
+    *,
+    noise_levels: Sequence[float] = (0.0, 2.0, 5.0),
+    n_cameras: int = 20,
+    quick: bool = False,
+    columns: Sequence[str] = COLUMNS,
+    extra: Sequence[Callable[..., list[Row]]] = (),
+    progress: Callable[[str], None] | None = None,
+) -> list[Row]:
+    """Run the protocol; returns the rows (print them with :func:`format_table`)."""
+    rows = []
+    for name, (chain, seqs, note) in sequence_groups(groups, quick=quick).items():
+        for noise in noise_levels:
+            acc: dict[str, list[tuple[float, float, float]]] = {c: [] for c in columns}
+            for i, poses in enumerate(seqs):
+                for cam in range(n_cameras):
+                    res = evaluate_sequence(poses, chain, noise_px=noise, seed=_seed(name, i, cam), columns=columns)
+                    for c, v in res.items():
+                        acc[c].append(v)
+            cells = {c: tuple(float(x) for x in np.mean(v, axis=0)) for c, v in acc.items() if v}
+            rows.append(Row(name, float(noise), len(seqs) * n_cameras, cells, note))
+            if progress:
+                progress(f"{name} at {noise:g} px: done ({len(seqs)} sequences x {n_cameras} cameras)")
+    for producer in extra:
+        rows.extend(producer(noise_levels, quick))
+    return rows
+
+
+def format_table(rows: Sequence[Row], columns: Sequence[str] = COLUMNS) -> str:
+    """One markdown table: per column 'rigid / similarity mm (s per sequence)'."""
+    head = "| sequences | noise px | runs | " + " | ".join(columns) + " |"
+    sep = "|---|---:|---:|" + "---:|" * len(columns)
+    lines = [head, sep]
+    for r in rows:
+        cells = []
+        for c in columns:
+            if c in r.cells:
+                rig, sim, sec = r.cells[c]
+                cells.append(f"{rig * 1000:.1f} / {sim * 1000:.1f} ({sec:.2f} s)")
+            else:
+                cells.append("-")
+        name = r.group + (f" [{r.note}]" if r.note else "")
+        lines.append(f"| {name} | {r.noise_px:g} | {r.n_runs} | " + " | ".join(cells) + " |")
+    lines.append("")
+    lines.append("3D error in mm, rigid / similarity per-frame Procrustes alignment, mean over frames, "
+                 "sequences and camera paths; seconds per sequence in brackets.")
+    return "\n".join(lines)

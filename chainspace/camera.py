@@ -1,0 +1,209 @@
+"""Per-frame weak-perspective cameras: fit to bones, and projection.
+
+A weak-perspective camera is the (2, 3) matrix ``P = s * R[:2]`` with ``R`` a rotation and ``s > 0``
+the scale (image units per world unit). It is exactly the two constraints of Wandt et al. (2017,
+Sec. 3.3): rows orthogonal, rows of equal norm. Bones are translation free, so fitting a camera to
+bones (``W C ~ P B``) needs no image translation.
+
+:func:`fit_cameras` solves, for every frame k at once,
+
+    min_{s_k, R_k}  sum_l  w_kl * || w_kl_2d - s_k R_k[:2] b_kl ||^2
+
+starting from the closed-form projection of the unconstrained affine least-squares camera onto the
+constraint set (one batched SVD), followed by batched Gauss-Newton steps on (s, rotation) with a
+Levenberg damping and a monotone acceptance test per frame, so the result is never worse than the
+closed-form start.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from .errors import TrackError
+
+__all__ = ["fit_cameras", "project", "camera_scale", "complete_rotation", "rodrigues"]
+
+
+def _rows(a: np.ndarray, dim: int, other: int | None, name: str) -> np.ndarray:
+    """Return vectors as (..., L, dim) from (..., dim, L) or (..., L, dim)."""
+    if a.shape[-1] == dim and (a.shape[-2] != dim or other is None or a.shape[-2] == other):
+        return a
+    if a.shape[-2] == dim:
+        return np.swapaxes(a, -1, -2)
+    raise TrackError(f"{name} has shape {a.shape}: expected (F, {dim}, L) or (F, L, {dim})")
+
+
+def rodrigues(omega: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation matrices exp([omega]x) for rotation vectors (..., 3)."""
+    th = np.linalg.norm(omega, axis=-1)[..., None, None]
+    K = np.zeros(omega.shape[:-1] + (3, 3))
+    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -omega[..., 2], omega[..., 1], -omega[..., 0]
+    K = K - np.swapaxes(K, -1, -2)
+    small = th < 1e-8
+    ths = np.where(small, 1.0, th)
+    a = np.where(small, 1.0 - th**2 / 6.0, np.sin(ths) / ths)
+    b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
+    return np.eye(3) + a * K + b * (K @ K)
+
+
+def complete_rotation(Q: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation whose first two rows are the orthonormal rows of Q (..., 2, 3)."""
+    return np.concatenate([Q, np.cross(Q[..., 0, :], Q[..., 1, :])[..., None, :]], axis=-2)
+
+
+def camera_scale(cameras: Any) -> np.ndarray:
+    """(F,) scale of weak-perspective cameras: the mean row norm."""
+    P = np.asarray(cameras, dtype=float)
+    return np.linalg.norm(P, axis=-1).mean(axis=-1)
+
+
+def fit_cameras(
+    W_bones: Any,
+    B: Any,
+    weights: Any = None,
+    *,
+    n_iter: int = 6,
+    fill: bool = True,
+    return_rotation: bool = False,
+    R0: Any = None,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Best weak-perspective camera per frame mapping 3D bones ``B`` to observed 2D bones ``W_bones``.
+
+    Parameters
+    ----------
+    W_bones
+        (F, 2, L) or (F, L, 2) observed 2D bone vectors ``W C`` (image units). NaN entries get weight 0.
+    B
+        (F, 3, L), (F, L, 3) or a shared (L, 3) set of 3D bone vectors (world units).
+    weights
+        Optional (F, L) non-negative weights per bone (confidences).
+    n_iter
+        Gauss-Newton iterations after the closed-form start.
+    fill
+        Frames with fewer than two usable bones get the camera of the nearest usable frame (else NaN).
+    return_rotation
+        Also return the scales (F,) and full rotations (F, 3, 3).
+    R0
+        Optional (F, 3, 3) or (3, 3) rotations to start from (a warm start) instead of the closed form.
+
+    Returns
+    -------
+    cameras (F, 2, 3) with orthogonal rows of equal norm ``s`` (and ``s``, ``R`` when asked).
+    """
+    W = np.asarray(W_bones, dtype=float)
+    Bx = np.asarray(B, dtype=float)
+    W = _rows(W, 2, None, "W_bones")
+    if W.ndim != 3:
+        raise TrackError(f"W_bones has shape {W.shape}: expected (F, 2, L) or (F, L, 2)")
+    F, L = W.shape[:2]
+    Bx = _rows(Bx, 3, L, "B")
+    Bx = np.broadcast_to(Bx, (F, L, 3)) if Bx.ndim == 2 else Bx
+    if Bx.shape != (F, L, 3):
+        raise TrackError(f"B has shape {np.shape(B)}, which does not match W_bones {np.shape(W_bones)}")
+    w = np.ones((F, L)) if weights is None else np.broadcast_to(np.asarray(weights, float), (F, L)).copy()
+    ok = np.isfinite(W).all(-1) & np.isfinite(Bx).all(-1) & (w > 0)
+    w = np.where(ok, w, 0.0)
+    W = np.where(ok[..., None], W, 0.0)
+    Bx = np.where(ok[..., None], Bx, 0.0)
+
+    # Every quantity below depends on the data only through these per-frame moments, so the
+    # iterations cost O(F), not O(F L): G = B^T w B (3x3), H = W^T w B (2x3), c0 = sum w |W|^2.
+    wB = w[..., None] * Bx
+    G = np.swapaxes(wB, -1, -2) @ Bx
+    H = np.swapaxes(W, -1, -2) @ wB
+    c0 = (w * (W * W).sum(-1)).sum(-1)
+    if R0 is None:
+        # Closed form: affine M = H G^-1, projected onto s * (orthonormal rows) by one SVD.
+        ridge = 1e-9 * np.trace(G, axis1=-2, axis2=-1)[:, None, None] + 1e-300
+        M = H @ np.linalg.inv(G + ridge * np.eye(3))
+        U, _, Vt = np.linalg.svd(M, full_matrices=False)
+        R = complete_rotation(U @ Vt)
+    else:
+        R = np.broadcast_to(np.asarray(R0, float), (F, 3, 3)).copy()
+    s, R = _best_scale(G, H, R)
+    cost = _cost(G, H, c0, s, R)
+    lam = np.full(F, 1e-6)
+    for _ in range(n_iter):
+        s, R, cost, lam = _gauss_newton_step(G, H, c0, s, R, cost, lam)
+
+    usable = ok.sum(-1) >= 2
+    s = np.abs(s)
+    if fill and not usable.all() and usable.any():
+        idx = np.flatnonzero(usable)
+        near = idx[np.clip(np.searchsorted(idx, np.arange(F)), 0, len(idx) - 1)]
+        prev = idx[np.clip(np.searchsorted(idx, np.arange(F)) - 1, 0, len(idx) - 1)]
+        near = np.where(np.abs(prev - np.arange(F)) <= np.abs(near - np.arange(F)), prev, near)
+        s, R = s[near], R[near]
+    elif not usable.all():
+        s = np.where(usable, s, np.nan)
+        R = np.where(usable[:, None, None], R, np.nan)
+    P = s[:, None, None] * R[:, :2]
+    return (P, s, R) if return_rotation else P
+
+
+def _moments(G: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Moments in camera axes: Gy = R G R^T (3x3) and Hy = H R^T (2x3)."""
+    return R @ G @ np.swapaxes(R, -1, -2), H @ np.swapaxes(R, -1, -2)
+
+
+def _cost(G, H, c0, s, R):
+    Gy, Hy = _moments(G, H, R)
+    return c0 - 2.0 * s * (Hy[:, 0, 0] + Hy[:, 1, 1]) + s**2 * (Gy[:, 0, 0] + Gy[:, 1, 1])
+
+
+def _best_scale(G, H, R):
+    Gy, Hy = _moments(G, H, R)
+    num = Hy[:, 0, 0] + Hy[:, 1, 1]
+    den = Gy[:, 0, 0] + Gy[:, 1, 1]
+    s = np.where(den > 0, num / np.where(den > 0, den, 1.0), 1.0)
+    # A negative scale is a rotation by pi about the view axis: fold it into R.
+    flip = s < 0
+    if flip.any():
+        R = R.copy()
+        R[flip, :2] *= -1.0
+        s = np.abs(s)
+    return s, R
+
+
+# Jacobians of the predicted 2D bone (x, y) w.r.t. (ds, w1, w2, w3), for R <- exp([w]x) R, are
+# linear in the camera-axes bone y: Jx = (E0 + s E1) y, Jy = (F0 + s F1) y.
+_E0 = np.zeros((4, 3)); _E0[0, 0] = 1
+_E1 = np.zeros((4, 3)); _E1[2, 2] = 1; _E1[3, 1] = -1
+_F0 = np.zeros((4, 3)); _F0[0, 1] = 1
+_F1 = np.zeros((4, 3)); _F1[1, 2] = -1; _F1[3, 0] = 1
+
+
+def _gauss_newton_step(G, H, c0, s, R, cost, lam):
+    """One damped Gauss-Newton step on (s, rotation vector), kept per frame only if it lowers the cost."""
+    Gy, Hy = _moments(G, H, R)
+    sc = s[:, None, None]
+    Mx, My = _E0 + sc * _E1, _F0 + sc * _F1  # (F, 4, 3)
+    A = Mx @ Gy @ np.swapaxes(Mx, -1, -2) + My @ Gy @ np.swapaxes(My, -1, -2)
+    g = (Mx @ (Hy[:, 0] - s[:, None] * Gy[:, :, 0])[..., None]
+         + My @ (Hy[:, 1] - s[:, None] * Gy[:, :, 1])[..., None])[..., 0]
+    diag = np.einsum("fii->fi", A)
+    A = A + (lam[:, None] * diag + 1e-12 * (diag.sum(-1, keepdims=True) + 1e-300))[..., None] * np.eye(4)
+    d = np.linalg.solve(A, g[..., None])[..., 0]
+    R_new = rodrigues(d[:, 1:]) @ R
+    s_new, R_new = _best_scale(G, H, R_new)
+    c_new = _cost(G, H, c0, s_new, R_new)
+    better = c_new <= cost
+    s = np.where(better, s_new, s)
+    R = np.where(better[:, None, None], R_new, R)
+    cost = np.where(better, c_new, cost)
+    lam = np.where(better, lam * 0.3, lam * 10.0)
+    return s, R, cost, lam
+
+
+def project(poses: Any, cameras: Any, translations: Any = None) -> np.ndarray:
+    """Tracks (F, J, 2) = poses (F, J, 3) @ cameras^T (F, 2, 3) + translations (F, 2)."""
+    X = np.asarray(poses, dtype=float)
+    P = np.asarray(cameras, dtype=float)
+    if X.shape[-1] != 3 or P.shape[-2:] != (2, 3):
+        raise TrackError(f"project needs poses (F, J, 3) and cameras (F, 2, 3), got {X.shape} and {P.shape}")
+    out = X @ np.swapaxes(P, -1, -2)
+    if translations is not None:
+        out = out + np.asarray(translations, dtype=float)[..., None, :]
+    return out

@@ -1,0 +1,906 @@
+"""Joint angles of a robot from its reconstructed 3D motion, refined straight on its 2D tracks.
+
+A chain made by :func:`chainspace.from_urdf` has one point per URDF link origin (plus tool frames);
+Pinocchio knows each of them as a frame. :func:`fit_joint_angles` finds, for every frame of a
+sequence, the joint angles ``q`` that put those frames where the points were seen:
+
+1. **3D fit.** A monocular reconstruction is known only up to a similarity (scale, rotation,
+   translation) and, under weak perspective, a depth mirror. One similarity ``X = s R x(q) + t`` for
+   the whole sequence is estimated jointly with the joint angles by alternating Umeyama's closed form
+   with per-frame damped Gauss-Newton (Levenberg-Marquardt) on Pinocchio frame Jacobians, warm-started
+   from the previous frame, inside the joint limits. Both the poses and their mirror image are tried;
+   the better one is kept.
+2. **Model-based refinement** (default when 2D tracks are given): with the link lengths known from
+   the URDF, the joint angles and a weak-perspective camera ``u = s R[:2] x(q) + t2`` are fitted
+   straight to the tracks (reprojection error in pixels, confidence weights, a robust Huber loss,
+   NaN = not seen). By default one static camera for the whole sequence (a tripod in front of a robot
+   on a fixed base); ``camera="per-frame"`` gives each frame its own. The normal equations have one
+   block per frame plus the shared camera; the camera is eliminated by a Schur complement, so each
+   iteration costs one Pinocchio Jacobian pass over the frames and small batched solves.
+
+Observability (the rule)
+------------------------
+A joint is observable when moving it moves some tracked point in a way no change of camera (or, in
+3D, of the similarity) can imitate. Two cases are detected from the stacked Jacobians of the tracked
+points and reported in ``fit.observable`` / ``fit.relative`` and ``fit.message``:
+
+* *No tracked point moves with the joint* (a last joint whose axis runs through the only tracked
+  point of its link; fingers of a gripper that is not tracked). The joint is held at its rest value
+  and marked unobservable.
+* *Its motion equals a motion of the camera*: the first joint turning about the base's vertical axis
+  when every tracked point of the base lies on that axis. A static camera sees it only relative to the
+  first frame: it is held at its rest value in frame 0 and fitted in every other frame
+  (``fit.relative[k]`` is True, ``fit.observable[k]`` False). With ``camera="per-frame"`` each
+  frame's camera absorbs it and it is held at its 3D-fit value.
+
+To make such a joint observable, track a point that moves with it off its axis: e.g. a point on the
+base plate off the first axis, or a tool tip off the flange axis, given to ``from_urdf`` as
+``extra_frames={"base_mark": ("base_link", [0.3, 0, 0]), "tool_tip": ("tool0", [0, 0.05, 0.2])}``.
+
+Conventions: ``fit.q`` is (F, nq) in the order of the Pinocchio model built from the same URDF
+(``pinocchio.buildModelFromUrdf``); lengths in metres, angles in radians, image coordinates in the
+units of the tracks (pixels). Cameras map points of the robot's base frame to the image.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .chain import KinematicChain
+from .errors import ConvergenceWarning, DescriptionError, DescriptionNotFoundError, TrackError
+
+__all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"]
+
+
+# ---------------------------------------------------------------------------------------------------
+# Pinocchio model of the tracked points
+# ---------------------------------------------------------------------------------------------------
+class RobotKinematics:
+    """The Pinocchio model of a URDF with one frame per point of a chain, in the chain's order.
+
+    ``positions(q)`` and ``jacobians(q)`` are vectorised over frames in their interface (q is (F, nq));
+    the loop over frames is Pinocchio's. Points named in ``chain.metadata["extra_frames"]``
+    ({name: (parent_link, [x, y, z])}) are added as operational frames.
+    """
+
+    def __init__(self, urdf: str | Path, chain: KinematicChain) -> None:
+        import pinocchio as pin
+
+        self.pin = pin
+        path = Path(urdf)
+        if not path.is_file():
+            raise DescriptionNotFoundError(f"URDF file {path} does not exist")
+        try:
+            self.model = pin.buildModelFromUrdf(str(path))
+        except Exception as exc:  # Pinocchio raises plain RuntimeError/ValueError
+            raise DescriptionError(f"{path}: Pinocchio cannot read this URDF: {exc}") from None
+        self.urdf_path = str(path)
+        self.chain = chain
+        extra = dict(chain.metadata.get("extra_frames") or {})
+        self.frame_ids = [int(self._frame_id(n, extra)) for n in chain.joints]
+        self.data = self.model.createData()
+        m = self.model
+        self.nq, self.nv = m.nq, m.nv
+        self.lower = np.array(m.lowerPositionLimit, dtype=float)
+        self.upper = np.array(m.upperPositionLimit, dtype=float)
+        # Only 1-dof joints with nq == nv (revolute, prismatic) have meaningful box limits.
+        self.limited = np.zeros(self.nq, bool)
+        self.idx_v = np.zeros(self.nq, int) - 1  # velocity index of each 1-dof q entry
+        for j in range(1, m.njoints):
+            jm = m.joints[j]
+            if jm.nq == 1 and jm.nv == 1:
+                self.limited[jm.idx_q] = np.isfinite(self.lower[jm.idx_q]) and np.isfinite(self.upper[jm.idx_q]) \
+                    and self.upper[jm.idx_q] > self.lower[jm.idx_q]
+                self.idx_v[jm.idx_q] = jm.idx_v
+        self.euclidean = self.nq == self.nv
+        # 1-dof revolute joints: q and q + 2 pi are the same pose
+        self.revolute = np.zeros(self.nq, bool)
+        for j in range(1, m.njoints):
+            jm = m.joints[j]
+            if jm.nq == 1 and jm.shortname().startswith(("JointModelR", "JointModelRevolute")) \
+                    and "Unbounded" not in jm.shortname():
+                self.revolute[jm.idx_q] = True
+        q_rest = chain.metadata.get("q_rest")
+        self.q_rest = self.clip(np.asarray(q_rest, float) if q_rest is not None and np.size(q_rest) == self.nq
+                                else np.array(pin.neutral(m)))
+        self.joint_names = self._q_names()
+        # the velocity index driving each q entry (-1 for the extra entries of multi-dof joints)
+        self.v_of_q = self.idx_v.copy()
+        self.q_of_v = np.array([int(np.flatnonzero(self.idx_v == v)[0]) if (self.idx_v == v).any() else -1
+                                for v in range(self.nv)])
+
+    def _frame_id(self, name: str, extra: dict) -> int:
+        pin, m = self.pin, self.model
+        if name in extra:
+            parent, xyz = extra[name]
+            if not m.existFrame(parent):
+                raise DescriptionError(
+                    f"{self.urdf_path}: extra frame {name!r} hangs from {parent!r}, which is not a link of the URDF")
+            pf = m.getFrameId(parent)
+            frame = m.frames[pf]
+            placement = frame.placement * pin.SE3(np.eye(3), np.asarray(xyz, dtype=float))
+            return m.addFrame(pin.Frame(name, frame.parentJoint, pf, placement, pin.FrameType.OP_FRAME))
+        if m.existFrame(name, pin.FrameType.BODY):
+            return m.getFrameId(name, pin.FrameType.BODY)
+        if m.existFrame(name):
+            return m.getFrameId(name)
+        raise DescriptionError(
+            f"{self.urdf_path}: chain point {name!r} is neither a link of the URDF nor an extra frame "
+            f"(extra frames: {sorted(extra) or 'none'}); build the chain with chainspace.from_urdf")
+
+    def _q_names(self) -> list[str]:
+        m, names = self.model, []
+        for j in range(1, m.njoints):
+            nq = m.joints[j].nq
+            names += [m.names[j]] if nq == 1 else [f"{m.names[j]}[{k}]" for k in range(nq)]
+        return names
+
+    # ------------------------------------------------------------------ configuration space
+    def clip(self, q: np.ndarray) -> np.ndarray:
+        """Project configurations (..., nq) into the joint limits."""
+        q = np.array(q, dtype=float)
+        q[..., self.limited] = np.clip(q[..., self.limited], self.lower[self.limited], self.upper[self.limited])
+        return q
+
+    def wrap_near(self, q: np.ndarray, ref: np.ndarray) -> np.ndarray:
+        """Shift revolute joints of a path q (F, nq) by whole turns, the same for all frames, so that the
+        first frame is nearest ref (nq,), where the limits allow: the same poses, comparable angles."""
+        q = np.array(q, dtype=float)
+        k = np.round((q[0] - ref) / (2 * np.pi)) * self.revolute
+        for turns in (k, np.sign(k) * (np.abs(k) - 1)):
+            shifted = q - 2 * np.pi * turns
+            ok = ~self.limited | ((shifted.min(0) >= self.lower - 1e-12) & (shifted.max(0) <= self.upper + 1e-12))
+            ok &= turns != 0
+            q[:, ok] = shifted[:, ok]
+            k = np.where(ok, 0, k)
+        return q
+
+    def integrate(self, q: np.ndarray, dv: np.ndarray) -> np.ndarray:
+        """q (F, nq) moved by velocities dv (F, nv), then clipped into the limits."""
+        if self.euclidean:
+            return self.clip(q + dv)
+        out = np.array([self.pin.integrate(self.model, qf, vf) for qf, vf in zip(q, dv)])
+        return self.clip(out)
+
+    def angles(self, q: np.ndarray) -> np.ndarray:
+        """(F, nv) per-dof coordinates: q itself for 1-dof joints; continuous joints' (cos, sin) as an
+        unwrapped angle. Other multi-dof joints (spherical, free) give the difference to the rest."""
+        q = np.asarray(q, float)
+        if self.euclidean:
+            return q.copy()
+        out = np.zeros(q.shape[:-1] + (self.nv,))
+        m = self.model
+        for j in range(1, m.njoints):
+            jm = m.joints[j]
+            if jm.nq == jm.nv:
+                out[..., jm.idx_v:jm.idx_v + jm.nv] = q[..., jm.idx_q:jm.idx_q + jm.nq]
+            elif jm.nq == 2 and jm.nv == 1:
+                out[..., jm.idx_v] = np.unwrap(np.arctan2(q[..., jm.idx_q + 1], q[..., jm.idx_q]), axis=0)
+            else:
+                for f in np.ndindex(q.shape[:-1]):
+                    d = self.pin.difference(m, self.q_rest, q[f])
+                    out[f + (slice(jm.idx_v, jm.idx_v + jm.nv),)] = d[jm.idx_v:jm.idx_v + jm.nv]
+        return out
+
+    # ------------------------------------------------------------------ kinematics
+    def positions(self, q: np.ndarray) -> np.ndarray:
+        """World positions (F, J, 3) of the chain's points for configurations q (F, nq), metres."""
+        pin, m, d = self.pin, self.model, self.data
+        q = np.atleast_2d(q)
+        out = np.empty((len(q), len(self.frame_ids), 3))
+        for f, qf in enumerate(q):
+            pin.forwardKinematics(m, d, qf)
+            for j, fid in enumerate(self.frame_ids):
+                out[f, j] = pin.updateFramePlacement(m, d, int(fid)).translation
+        return out
+
+    def jacobians(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions (F, J, 3) and translational frame Jacobians (F, J, 3, nv) in world axes."""
+        pin, m, d = self.pin, self.model, self.data
+        q = np.atleast_2d(q)
+        F, J = len(q), len(self.frame_ids)
+        pos = np.empty((F, J, 3))
+        jac = np.empty((F, J, 3, self.nv))
+        lwa = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+        for f, qf in enumerate(q):
+            pin.computeJointJacobians(m, d, qf)
+            pin.updateFramePlacements(m, d)
+            for j, fid in enumerate(self.frame_ids):
+                pos[f, j] = d.oMf[fid].translation
+                jac[f, j] = pin.getFrameJacobian(m, d, int(fid), lwa)[:3]
+        return pos, jac
+
+    def reach(self) -> float:
+        """Largest distance of a chain point from the root over the rest pose and the limits' middle, m."""
+        qs = [self.q_rest, self.clip(np.where(self.limited, 0.5 * (self.lower + self.upper), self.q_rest))]
+        p = self.positions(np.array(qs))
+        return float(np.linalg.norm(p - p[:, :1], axis=-1).max())
+
+
+# ---------------------------------------------------------------------------------------------------
+# results
+# ---------------------------------------------------------------------------------------------------
+@dataclass
+class JointFit:
+    """Joint angles fitted to a robot's motion.
+
+    q (F, nq) radians / metres in Pinocchio's order; joint_names one per q entry; observable (nq,) bool
+    (False: held fixed, see the module docstring); relative (nq,) bool (seen only relative to the first
+    frame); positions (F, J, 3) fitted chain points in the reconstruction's frame (metres when the
+    reconstruction is); residual_3d (F,) RMS distance to the reconstructed points; residual_px (F,) RMS
+    reprojection error or None; converged (F,) bool; scale, rotation (3, 3), translation (3,) the
+    similarity from the robot's base frame to the reconstruction's; cameras (F, 2, 3) and
+    translations_2d (F, 2) map the base frame to the image (``u = cameras[f] @ x + translations_2d[f]``).
+    """
+
+    q: np.ndarray
+    joint_names: list[str]
+    observable: np.ndarray
+    positions: np.ndarray
+    residual_3d: np.ndarray
+    residual_px: np.ndarray | None
+    converged: np.ndarray
+    scale: float
+    rotation: np.ndarray
+    translation: np.ndarray
+    cameras: np.ndarray | None
+    translations_2d: np.ndarray | None
+    chain: KinematicChain
+    urdf_path: str
+    message: str
+    n_iter: int
+    relative: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    tracks: np.ndarray | None = None
+    confidence: np.ndarray | None = None
+    positions_base: np.ndarray | None = None
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.q)
+
+    def kinematics(self) -> RobotKinematics:
+        """The Pinocchio model used by the fit (rebuilt from ``urdf_path``)."""
+        return RobotKinematics(self.urdf_path, self.chain)
+
+    def reprojected(self) -> np.ndarray | None:
+        """(F, J, 2) the fitted robot seen by the fitted camera, or None without a camera."""
+        if self.cameras is None or self.positions_base is None:
+            return None
+        return np.einsum("fij,fkj->fki", self.cameras, self.positions_base) + self.translations_2d[:, None]
+
+    def __repr__(self) -> str:
+        obs = int(self.observable.sum())
+        px = "" if self.residual_px is None else f", reprojection {np.nanmean(self.residual_px):.3g} px"
+        return (f"JointFit({self.n_frames} frames, {len(self.joint_names)} q entries ({obs} observable){px}, "
+                f"converged {int(self.converged.sum())}/{self.n_frames}: {self.message})")
+
+
+# ---------------------------------------------------------------------------------------------------
+# small numerical helpers
+# ---------------------------------------------------------------------------------------------------
+def similarity_align(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None, *,
+                     reflection: bool = False) -> tuple[float, np.ndarray, np.ndarray]:
+    """Umeyama's weighted similarity ``dst ~ s R src + t`` over all points (..., 3); NaN rows ignored.
+
+    Returns (s, R (3, 3), t (3,)). ``reflection=False`` keeps det(R) = +1.
+    """
+    a = src.reshape(-1, 3)
+    b = dst.reshape(-1, 3)
+    w = np.ones(len(a)) if weights is None else np.asarray(weights, float).reshape(-1).copy()
+    ok = np.isfinite(a).all(1) & np.isfinite(b).all(1) & (w > 0)
+    a, b, w = a[ok], b[ok], w[ok] / w[ok].sum()
+    ma, mb = w @ a, w @ b
+    A, B = a - ma, b - mb
+    cov = (B * w[:, None]).T @ A
+    U, S, Vt = np.linalg.svd(cov)
+    d = np.ones(3)
+    if not reflection and np.linalg.det(U @ Vt) < 0:
+        d[-1] = -1
+    R = U @ np.diag(d) @ Vt
+    var = float(w @ (A ** 2).sum(1))
+    s = float((S * d).sum() / var) if var > 0 else 1.0
+    return s, R, mb - s * R @ ma
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(..., 3) -> (..., 3, 3) cross-product matrices."""
+    z = np.zeros(v.shape[:-1])
+    x, y, w = v[..., 0], v[..., 1], v[..., 2]
+    return np.stack([np.stack([z, -w, y], -1), np.stack([w, z, -x], -1), np.stack([-y, x, z], -1)], -2)
+
+
+def _rotvec(w: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(w).as_matrix()
+
+
+def _affine_camera(x: np.ndarray, u: np.ndarray, w: np.ndarray, per_frame: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Weak-perspective camera(s) s R[:2] (F, 2, 3) and t (F, 2) closest to u ~ M x + t (least squares,
+    then the 2x3 matrix projected onto scaled orthonormal rows)."""
+    F = len(x)
+    groups = [np.arange(F)[i:i + 1] for i in range(F)] if per_frame else [np.arange(F)]
+    cams, ts = np.zeros((F, 2, 3)), np.zeros((F, 2))
+    for g in groups:
+        xs, us, ws = x[g].reshape(-1, 3), u[g].reshape(-1, 2), w[g].reshape(-1)
+        ok = (ws > 0) & np.isfinite(us).all(1)
+        A = np.hstack([xs[ok], np.ones((ok.sum(), 1))]) * np.sqrt(ws[ok])[:, None]
+        sol = np.linalg.lstsq(A, us[ok] * np.sqrt(ws[ok])[:, None], rcond=None)[0]  # (4, 2)
+        M = sol[:3].T
+        U, S, Vt = np.linalg.svd(M, full_matrices=False)
+        cams[g] = S.mean() * (U @ Vt)
+        ts[g] = sol[3]
+    return cams, ts
+
+
+def _camera_to_rotation(M: np.ndarray) -> tuple[float, np.ndarray]:
+    """A weak-perspective 2x3 camera s R[:2] -> (s, full rotation R)."""
+    s = float(np.linalg.norm(M, axis=1).mean())
+    r1, r2 = M[0] / np.linalg.norm(M[0]), M[1] / np.linalg.norm(M[1])
+    r2 = r2 - (r1 @ r2) * r1
+    r2 /= np.linalg.norm(r2)
+    return s, np.stack([r1, r2, np.cross(r1, r2)])
+
+
+# ---------------------------------------------------------------------------------------------------
+# Levenberg-Marquardt over a sequence: per-frame joint angles + a shared (or per-frame) view
+# ---------------------------------------------------------------------------------------------------
+def _huber(rn: np.ndarray, delta: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """Huber loss rho(r) and IRLS weight rho'(r) / (2 r) of residual norms (plain squares when delta is None)."""
+    if delta is None:
+        return rn ** 2, np.ones_like(rn)
+    inside = rn <= delta
+    return (np.where(inside, rn ** 2, 2 * delta * rn - delta ** 2),
+            np.where(inside, 1.0, delta / np.maximum(rn, 1e-300)))
+
+
+@dataclass
+class _View:
+    """The sequence's view of the robot's base frame: ``target ~ S[c] (R[c] x)[:D] + T[c]`` for the view
+    c = cam_of[f] of frame f. D = 3: a similarity onto 3D points; D = 2: weak-perspective cameras."""
+
+    S: np.ndarray  # (C,) scale
+    R: np.ndarray  # (C, 3, 3) rotation
+    T: np.ndarray  # (C, D) translation
+    cam_of: np.ndarray  # (F,) view index of each frame
+
+    @property
+    def per_frame(self) -> bool:
+        return len(self.S) == len(self.cam_of) and len(self.S) > 1
+
+    def apply(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(prediction (F, J, D), rotated points y = R x (F, J, 3))."""
+        c = self.cam_of
+        y = np.einsum("fij,fkj->fki", self.R[c], x)
+        D = self.T.shape[1]
+        return self.S[c][:, None, None] * y[..., :D] + self.T[c][:, None], y
+
+    def moved(self, dc: np.ndarray) -> _View:
+        """The view after a step dc (C, 3 + 1 + D): rotation vector (R <- exp(w^) R), scale, translation."""
+        return _View(self.S + dc[:, 3], np.einsum("cij,cjk->cik", _rotvec(dc[:, :3]), self.R),
+                     self.T + dc[:, 4:], self.cam_of)
+
+    def take(self, idx: np.ndarray) -> _View:
+        """The view of frames idx only."""
+        if self.per_frame:
+            return _View(self.S[idx], self.R[idx], self.T[idx], np.arange(len(idx)))
+        return _View(self.S, self.R, self.T, self.cam_of[idx])
+
+    def put(self, idx: np.ndarray, sub: _View, accept: np.ndarray) -> _View:
+        """This view with the frames idx[accept] taken from sub (a view from take(idx))."""
+        if not accept.any():
+            return self
+        if not self.per_frame:
+            return _View(sub.S, sub.R, sub.T, self.cam_of)
+        S, R, T = self.S.copy(), self.R.copy(), self.T.copy()
+        S[idx[accept]], R[idx[accept]], T[idx[accept]] = sub.S[accept], sub.R[accept], sub.T[accept]
+        return _View(S, R, T, self.cam_of)
+
+    def matrices(self) -> np.ndarray:
+        """(F, D, 3) the linear part s R[:D] per frame."""
+        c = self.cam_of
+        return self.S[c][:, None, None] * self.R[c][:, : self.T.shape[1]]
+
+
+def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
+                 free: np.ndarray, free_view: np.ndarray, max_iter: int, tol: float, delta: float | None):
+    """Levenberg-Marquardt on all frames' joint angles and the view(s) against target (F, J, D).
+
+    The normal equations have one (nv x nv) block per frame and one small block per view; the views are
+    eliminated by a Schur complement (batched over frames), so an iteration costs one Pinocchio Jacobian
+    pass and small batched solves. When the frames are independent (the view fixed, or one view per
+    frame) each frame keeps its own damping and accepts its own steps, and converged frames drop out.
+    free (F, nv) / free_view (3 + 1 + D,) mask the directions allowed to move; a robust Huber loss
+    (IRLS) with threshold delta (None: squares). Returns (q, view, residual norms (F, J), base-frame
+    positions (F, J, 3), converged (F,), iterations).
+    """
+    F, J, D = target.shape
+    nv, nc = robot.nv, 4 + D
+    tz = np.nan_to_num(target)
+    eye_q, eye_c = np.eye(nv), np.eye(nc)
+    fixed_q, fixed_c = (~free).astype(float), (~free_view).astype(float)
+    independent = not free_view.any() or view.per_frame
+    q = q.copy()
+
+    def evaluate(qa, va, a):
+        pos, jac = robot.jacobians(qa)
+        pred, y = va.apply(pos)
+        res = pred - tz[a]
+        return pos, jac, y, res, (w[a] * _huber(np.linalg.norm(res, axis=-1), delta)[0]).sum(1)
+
+    pos, jac, y, res, cost = evaluate(q, view, np.arange(F))
+    lam = np.full(F, 1e-4)
+    active = np.ones(F, bool)
+    it = 0
+    for it in range(1, max_iter + 1):
+        a = np.flatnonzero(active)
+        va = view.take(a)
+        ww = w[a] * _huber(np.linalg.norm(res[a], axis=-1), delta)[1]
+        sc = va.S[va.cam_of][:, None, None, None]
+        Jq = np.einsum("fdc,fjcv->fjdv", va.matrices(), jac[a]) * free[a][:, None, None, :]
+        Jc = np.concatenate([-sc * _skew(y[a])[..., :D, :], y[a][..., :D, None],
+                             np.broadcast_to(np.eye(D), (len(a), J, D, D))], -1) * free_view
+        Hqq = np.einsum("fjdv,fj,fjdu->fvu", Jq, ww, Jq)
+        Hqc = np.einsum("fjdv,fj,fjdc->fvc", Jq, ww, Jc)
+        gq = np.einsum("fjdv,fj,fjd->fv", Jq, ww, res[a])
+        Ca = len(va.S)
+        Hcc, gc = np.zeros((Ca, nc, nc)), np.zeros((Ca, nc))
+        np.add.at(Hcc, va.cam_of, np.einsum("fjdc,fj,fjde->fce", Jc, ww, Jc))
+        np.add.at(gc, va.cam_of, np.einsum("fjdc,fj,fjd->fc", Jc, ww, res[a]))
+        dq_diag = np.einsum("fvv->fv", Hqq)
+        dc_diag = np.einsum("cdd->cd", Hcc)
+        floor_q = 1e-6 * dq_diag.mean(1, keepdims=True) + 1e-30
+        for _ in range(1 if independent else 12):
+            la = lam[a]
+            Hq = Hqq + (la[:, None] * (dq_diag + floor_q) + fixed_q[a])[:, :, None] * eye_q
+            lc = la if Ca == len(a) else la[:1]
+            Hc = Hcc + (lc[:, None] * (dc_diag + 1e-12) + fixed_c)[:, :, None] * eye_c
+            Hq_inv = np.linalg.inv(Hq)
+            K = Hq_inv @ Hqc  # (F, nv, nc)
+            schur, rhs = Hc.copy(), gc.copy()
+            np.add.at(schur, va.cam_of, -np.einsum("fvc,fvd->fcd", Hqc, K))
+            np.add.at(rhs, va.cam_of, -np.einsum("fvc,fv->fc", K, gq))
+            dc = -np.linalg.solve(schur, rhs[..., None])[..., 0] * free_view
+            dq = -(np.einsum("fvu,fu->fv", Hq_inv, gq) + np.einsum("fvc,fc->fv", K, dc[va.cam_of])) * free[a]
+            q_t, v_t = robot.integrate(q[a], dq), va.moved(dc)
+            p_t, j_t, y_t, r_t, c_t = evaluate(q_t, v_t, a)
+            better = c_t <= cost[a] if independent else np.full(len(a), c_t.sum() <= cost[a].sum())
+            if better.any():
+                break
+            lam[a] *= 10
+        if not better.any() and not independent:
+            active[:] = False  # no step lowers the cost any more: a minimum to machine precision
+            break
+        b = a[better]
+        rel = (cost[b] - c_t[better]) / np.maximum(cost[b], 1e-300)
+        if not independent:
+            rel = np.full(len(b), (cost[b].sum() - c_t.sum()) / max(cost[b].sum(), 1e-300))
+        q[b], pos[b], jac[b], y[b], res[b], cost[b] = q_t[better], p_t[better], j_t[better], y_t[better], \
+            r_t[better], c_t[better]
+        view = view.put(a, v_t, better)
+        lam[b] = np.maximum(lam[b] / 5, 1e-12)
+        lam[a[~better]] *= 10
+        done = (rel < tol) | (cost[b] < 1e-24)
+        if independent:
+            active[b[done]] = False
+            active[a[~better][lam[a[~better]] > 1e10]] = False
+        elif done.all():
+            active[:] = False
+        if not active.any():
+            break
+    return q, view, np.linalg.norm(res, axis=-1), pos, ~active, it
+
+
+def _rms_per_frame(rn: np.ndarray, w: np.ndarray) -> np.ndarray:
+    wf = w.sum(1)
+    return np.where(wf > 0, np.sqrt((w * rn ** 2).sum(1) / np.maximum(wf, 1e-300)), np.nan)
+
+
+def _robust_scale(rn: np.ndarray, w: np.ndarray, floor: float) -> float:
+    """Huber threshold: 3 robust standard deviations of the used residual norms."""
+    r = rn[w > 0]
+    return max(3.0 * 1.4826 * float(np.median(r)) if r.size else 0.0, floor)
+
+
+# ---------------------------------------------------------------------------------------------------
+# step 1: joint angles and one similarity from 3D points
+# ---------------------------------------------------------------------------------------------------
+def _ik(robot: RobotKinematics, Y: np.ndarray, w: np.ndarray, q0: np.ndarray, free: np.ndarray,
+        max_iter: int) -> np.ndarray:
+    """Levenberg-Marquardt for one frame: q minimising sum_j w_j |x_j(q) - Y_j|^2 inside the limits.
+    Y (J, 3) targets in the base frame, q0 (nq,), free (nv,)."""
+    view = _View(np.ones(1), np.eye(3)[None], np.zeros((1, 3)), np.zeros(1, int))
+    q, *_ = _sequence_lm(robot, q0[None], Y[None], w[None], view, free[None], np.zeros(7, bool),
+                         max_iter, 1e-8, None)
+    return q[0]
+
+
+def _align(x: np.ndarray, X: np.ndarray, w: np.ndarray, transform: str) -> _View:
+    """The sequence's similarity (or rigid motion, or identity) from base-frame points x onto X."""
+    if transform == "none":
+        s, R, t = 1.0, np.eye(3), np.zeros(3)
+    else:
+        s, R, t = similarity_align(np.broadcast_to(x, X.shape), X, w)
+        s = s if transform == "similarity" else 1.0
+    return _View(np.array([s]), R[None], t[None], np.zeros(len(X), int))
+
+
+def _initial_view(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np.ndarray, transform: str,
+                  n_rotations: int = 48, n_frames: int = 8, seed: int = 0) -> _View:
+    """A first view of the base frame onto X (F, J, 3), found by trying rotations.
+
+    Scale from the bone lengths (constant for links joined by revolute joints), translation from the
+    root (fixed to the base); for each of ``n_rotations`` rotations (the rest pose's closed-form
+    alignment plus random ones, a fixed seed), per-frame IK from the rest pose on ``n_frames`` frames
+    spread over the sequence, all in one batched solve; the rotation with the lowest median residual
+    wins. A local method started from the closed-form alignment alone lands in a wrong pose when the
+    robot moves far from its rest pose.
+    """
+    from scipy.spatial.transform import Rotation
+
+    x_rest = robot.positions(robot.q_rest)[0]
+    aligned = _align(x_rest, X, w, transform)
+    if transform == "none":
+        return aligned
+    F, J, _ = X.shape
+    seen = w > 0
+    L_rec = np.array([np.median(np.linalg.norm(X[:, b] - X[:, a], axis=-1)[seen[:, a] & seen[:, b]])
+                      if (seen[:, a] & seen[:, b]).any() else np.nan for a, b in _link_index(robot.chain)])
+    L_mod = np.array([np.linalg.norm(x_rest[b] - x_rest[a]) for a, b in _link_index(robot.chain)])
+    ok = np.isfinite(L_rec) & (L_mod > 1e-3 * L_mod.max())
+    s = float(np.median(L_rec[ok] / L_mod[ok])) if ok.any() and transform == "similarity" else aligned.S[0]
+    r = robot.chain.joint_index(robot.chain.root)
+    frames = np.unique(np.linspace(0, F - 1, min(n_frames, F)).round().astype(int))
+    frames = frames[seen[frames].sum(1) >= 2] if (seen[frames].sum(1) >= 2).any() else frames
+    Rs = np.concatenate([aligned.R, Rotation.random(n_rotations, random_state=seed).as_matrix()])
+    root_X = np.array([np.median(X[seen[:, r], r], axis=0)]) if seen[:, r].any() else aligned.T
+    T = root_X - s * np.einsum("cij,j->ci", Rs, x_rest[r])
+    n_c, n_f = len(Rs), len(frames)
+    idx = np.tile(frames, n_c)
+    cand = _View(np.full(n_c * n_f, s), np.repeat(Rs, n_f, 0), np.repeat(T, n_f, 0), np.arange(n_c * n_f))
+    q0 = np.broadcast_to(robot.q_rest, (len(idx), robot.nq))
+    _, _, rn, _, _, _ = _sequence_lm(robot, q0, X[idx], w[idx], cand, free[idx], np.zeros(7, bool), 15, 1e-6,
+                                     None)
+    err = np.sqrt((w[idx] * rn ** 2).sum(1) / np.maximum(w[idx].sum(1), 1e-300)).reshape(n_c, n_f)
+    best = int(np.argmin(np.median(err, axis=1)))
+    return _View(np.array([s]), Rs[best][None], T[best][None], np.zeros(F, int))
+
+
+def _link_index(chain: KinematicChain) -> list[tuple[int, int]]:
+    return [(chain.joint_index(a), chain.joint_index(b)) for a, b in chain.links]
+
+
+def _fit_3d(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np.ndarray, transform: str,
+            max_iter: int, tol: float, rounds: int = 12) -> tuple[np.ndarray, _View, int]:
+    """Joint angles and one view onto the 3D points X (F, J, 3).
+
+    Start: the rest pose aligned on the whole sequence, then IK frame by frame, each frame warm-started
+    from the previous one (a continuous path). Then alternate the closed-form alignment with per-frame
+    IK (each frame with its own damping: robust far from the solution), and polish with the coupled
+    Levenberg-Marquardt of joint angles and view together (fast near the solution).
+    """
+    fixed_view = np.zeros(7, bool)
+    view = _initial_view(robot, X, w, free, transform)
+    q = np.empty((len(X), robot.nq))
+    prev = robot.q_rest
+    for f in range(len(X)):
+        q_f, *_ = _sequence_lm(robot, prev[None], X[f:f + 1], w[f:f + 1], view.take(np.array([f])),
+                               free[f:f + 1], fixed_view, 30, 1e-8, None)
+        prev = q[f] = q_f[0]
+    q = robot.wrap_near(q, robot.q_rest)
+    n_iter, prev_rms = 0, np.inf
+    for _ in range(rounds if transform != "none" else 1):
+        view = _align(robot.positions(q), X, w, transform)
+        q, view, rn, _, _, it = _sequence_lm(robot, q, X, w, view, free, fixed_view, 30, 1e-8, None)
+        n_iter += it
+        rms = float(np.sqrt((w * rn ** 2).sum() / w.sum()))
+        if rms > (1 - 1e-3) * prev_rms:
+            break
+        prev_rms = rms
+    return q, view, n_iter
+
+
+# ---------------------------------------------------------------------------------------------------
+# observability
+# ---------------------------------------------------------------------------------------------------
+def _blind_directions(robot: RobotKinematics, w: np.ndarray, seed: int = 0) -> np.ndarray:
+    """(nv,) velocity directions that move no tracked point, in any of a few random configurations."""
+    rng = np.random.default_rng(seed)
+    lo = np.where(robot.limited, robot.lower, -np.pi)
+    hi = np.where(robot.limited, robot.upper, np.pi)
+    qs = robot.clip(np.where(robot.limited | robot.euclidean, rng.uniform(lo, hi, (3, robot.nq)), robot.q_rest))
+    pos, jac = robot.jacobians(qs)
+    seen = (w > 0).any(0)
+    ext = max(np.linalg.norm(pos[:, seen] - pos[:, seen].mean(1, keepdims=True), axis=-1).max(), 1e-9)
+    return np.linalg.norm(jac[:, seen], axis=2).max(axis=(0, 1)) < 1e-9 * ext
+
+
+def _gauge_directions(x: np.ndarray, jac: np.ndarray, w: np.ndarray, P: np.ndarray | None, per_frame: bool,
+                      tol: float = 1e-3) -> np.ndarray:
+    """(nv,) directions whose motion of the tracked points a change of view imitates exactly.
+
+    x (F, J, 3) base-frame points, jac (F, J, 3, nv), w (F, J), P (F, 2, 3) cameras or None (3D: a
+    similarity). The generators of a view change are a rotation (omega x x), a scale (x) and a
+    translation (in the image only its two in-plane components); one change for the whole sequence
+    (per_frame False) or one per frame.
+    """
+    F, J, _, nv = jac.shape
+    G = np.concatenate([-_skew(x), x[..., None], np.broadcast_to(np.eye(3), (F, J, 3, 3))], -1)
+    if P is not None:
+        G = np.concatenate([np.einsum("fic,fjcg->fjig", P, G[..., :4]),
+                            np.broadcast_to(np.eye(2), (F, J, 2, 2))], -1)
+        jac = np.einsum("fic,fjcv->fjiv", P, jac)
+    sw = np.sqrt(w)[..., None, None]
+    G, jac = G * sw, jac * sw
+    A = G.reshape(F, -1, G.shape[-1]) if per_frame else G.reshape(1, -1, G.shape[-1])
+    b = jac.reshape(len(A), -1, nv)
+    res = b - A @ np.linalg.pinv(A) @ b
+    num = np.sqrt((res ** 2).sum((0, 1)))
+    den = np.sqrt((b ** 2).sum((0, 1)))
+    return num < tol * np.maximum(den, 1e-300)
+
+
+def _names_of_v(robot: RobotKinematics) -> list[str]:
+    m = robot.model
+    return [m.names[j] for j in range(1, m.njoints) for _ in range(m.joints[j].nv)]
+
+
+def _hold(robot: RobotKinematics, q: np.ndarray, blind: np.ndarray, gauge: np.ndarray,
+          per_frame: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Hold blind directions at rest in every frame; gauge directions at rest in frame 0 (shifting the
+    whole sequence, which a view change undoes) or, with per-frame views, at their current values.
+    Returns (q, free (F, nv))."""
+    q = q.copy()
+    free = np.ones((len(q), robot.nv), bool)
+    for v in np.flatnonzero(blind | gauge):
+        qi = robot.q_of_v[v]
+        if blind[v]:
+            free[:, v] = False
+            if qi >= 0:
+                q[:, qi] = robot.q_rest[qi]
+        elif per_frame:
+            free[:, v] = False
+        else:
+            free[0, v] = False
+            if qi >= 0:
+                q[:, qi] += robot.q_rest[qi] - q[0, qi]
+    return robot.clip(q), free
+
+
+def _notes(robot: RobotKinematics, blind: np.ndarray, gauge: np.ndarray, per_frame: bool) -> list[str]:
+    names = _names_of_v(robot)
+    notes = []
+    if blind.any():
+        notes.append("not observable, held at rest (no tracked point moves with it): "
+                     + ", ".join(names[v] for v in np.flatnonzero(blind)))
+    if gauge.any():
+        how = ("not observable, absorbed by each frame's camera, held at the 3D fit" if per_frame else
+               "observable only relative to the first frame (a turn of the camera looks the same), "
+               "held at rest in frame 0")
+        notes.append(f"{how}: {', '.join(names[v] for v in np.flatnonzero(gauge))}")
+    if notes:
+        notes.append("to observe a joint, track a point that moves with it off its axis (extra_frames)")
+    return notes
+
+
+# ---------------------------------------------------------------------------------------------------
+# the entry point
+# ---------------------------------------------------------------------------------------------------
+def _inputs(rec_or_poses, urdf, chain, tracks, confidence):
+    """Unpack and check what the caller gave: (poses, chain, urdf path, tracks, confidence)."""
+    if hasattr(rec_or_poses, "poses"):
+        rec = rec_or_poses
+        poses = np.asarray(rec.poses, float)
+        chain = chain or getattr(rec, "chain", None)
+        if tracks is None:
+            tracks = getattr(rec, "tracks", None)
+            if confidence is None:
+                confidence = getattr(rec, "confidence", None)
+    else:
+        try:
+            poses = np.asarray(rec_or_poses, float)
+        except (TypeError, ValueError):
+            raise TrackError(f"fit_joint_angles needs a Reconstruction or poses (F, J, 3), got "
+                             f"{type(rec_or_poses).__name__}") from None
+    if urdf is None and chain is not None:
+        urdf = chain.metadata.get("urdf_path")
+    if urdf is None:
+        raise DescriptionError("fit_joint_angles needs the robot's URDF: pass urdf=PATH or a chain made by "
+                               "chainspace.from_urdf")
+    if chain is None:
+        from .urdf import from_urdf
+
+        chain = from_urdf(urdf)
+    J = chain.n_joints
+    if poses.ndim == 2 and poses.shape == (J, 3):
+        poses = poses[None]
+    if poses.ndim != 3 or poses.shape[1:] != (J, 3):
+        raise TrackError(f"poses have shape {poses.shape}, expected (frames, {J}, 3) for {chain.name} "
+                         f"({', '.join(chain.joints[:4])}...)")
+    if len(poses) == 0:
+        raise TrackError("poses are empty: no frames to fit")
+    if np.isinf(poses).any():
+        f, j = np.argwhere(np.isinf(poses).any(-1))[0]
+        raise TrackError(f"poses contain inf at frame {f}, joint {chain.joints[j]!r}")
+    if tracks is not None:
+        tracks = np.asarray(tracks, float)
+        if tracks.shape != (len(poses), J, 2):
+            raise TrackError(f"tracks have shape {tracks.shape}, expected ({len(poses)}, {J}, 2) to match the "
+                             f"poses of {chain.name}")
+        if np.isinf(tracks).any():
+            f, j = np.argwhere(np.isinf(tracks).any(-1))[0]
+            raise TrackError(f"tracks contain inf at frame {f}, joint {chain.joints[j]!r}")
+    if confidence is not None:
+        confidence = np.asarray(confidence, float)
+        if confidence.shape != (len(poses), J):
+            raise TrackError(f"confidence has shape {confidence.shape}, expected ({len(poses)}, {J})")
+        if not np.isfinite(confidence).all() or (confidence < 0).any() or (confidence > 1).any():
+            raise TrackError("confidence must hold finite weights in [0, 1]")
+    return poses, chain, str(urdf), tracks, confidence
+
+
+
+
+def fit_joint_angles(
+    rec_or_poses: Any,
+    urdf: str | Path | None = None,
+    *,
+    chain: KinematicChain | None = None,
+    tracks: Any = None,
+    confidence: Any = None,
+    camera: str = "static",
+    refine: bool = True,
+    transform: str = "similarity",
+    max_iter: int = 100,
+    tol: float = 1e-10,
+    loss_scale_px: float | None = None,
+    mirror: bool = True,
+) -> JointFit:
+    """Fit the robot's joint angles to a reconstruction (and its 2D tracks).
+
+    Parameters
+    ----------
+    rec_or_poses
+        A :class:`chainspace.Reconstruction` of a chain made by ``from_urdf`` (its tracks and
+        confidences are used), or 3D points (F, J, 3) in the chain's order (NaN = missing).
+    urdf
+        Path of the URDF; default ``chain.metadata["urdf_path"]``.
+    chain
+        The chain of the points; default the reconstruction's, else ``from_urdf(urdf)``.
+    tracks, confidence
+        2D tracks (F, J, 2) in pixels (NaN = not seen) and weights (F, J) in [0, 1]. With tracks and
+        ``refine=True`` the joint angles and the camera are refined on the reprojection error.
+    camera
+        ``"static"`` (one camera for all frames, the default for a robot filmed from a tripod) or
+        ``"per-frame"``.
+    transform
+        How the 3D points relate to the robot's base frame: ``"similarity"`` (a monocular
+        reconstruction: unknown scale, rotation, translation and mirror), ``"rigid"`` (metric points in
+        another frame) or ``"none"`` (points already in the base frame, metres: every joint that moves
+        a tracked point is then observable, the first one included).
+    max_iter, tol
+        Iteration cap of each Levenberg-Marquardt run and the relative cost decrease that stops it.
+    loss_scale_px
+        Huber threshold of the 2D loss in pixels; None: 3 robust standard deviations of the residuals
+        of the 3D fit's start; 0: plain least squares.
+    mirror
+        Also try the depth-mirrored poses (weak perspective cannot tell them apart) and keep the better.
+
+    Returns
+    -------
+    JointFit
+        ``observable``/``relative`` follow the rule in the module docstring; ``message`` names the
+        joints that are not (fully) observable and why.
+    """
+    if camera not in ("static", "per-frame"):
+        raise DescriptionError(f"camera must be 'static' or 'per-frame', not {camera!r}")
+    if transform not in ("similarity", "rigid", "none"):
+        raise DescriptionError(f"transform must be 'similarity', 'rigid' or 'none', not {transform!r}")
+    if not (isinstance(max_iter, (int, np.integer)) and max_iter > 0):
+        raise DescriptionError(f"max_iter must be a positive integer, not {max_iter!r}")
+    poses, chain, urdf, tracks, confidence = _inputs(rec_or_poses, urdf, chain, tracks, confidence)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    robot = RobotKinematics(urdf, chain)
+    F = len(poses)
+    per_frame = camera == "per-frame"
+    w3 = np.isfinite(poses).all(-1).astype(float) * (1.0 if confidence is None else confidence)
+    if not (w3 > 0).any():
+        raise TrackError("no point of any frame is usable (all NaN or zero confidence)")
+    Xz = np.nan_to_num(poses)
+
+    # ---- step 1: 3D, both mirror images. Blind directions are known before fitting.
+    blind = _blind_directions(robot, w3)
+    _, free_blind = _hold(robot, np.broadcast_to(robot.q_rest, (F, robot.nq)), blind, blind & False, False)
+    free_sim = np.array([transform != "none"] * 3 + [transform == "similarity"] + [transform != "none"] * 3)
+    candidates, n_iter = [], 0
+    for sign in ((1.0, -1.0) if mirror and transform != "none" else (1.0,)):
+        X = sign * Xz
+        q, view, n_iter_a = _fit_3d(robot, X, w3, free_blind, transform, max_iter, tol)
+        gauge, free = np.zeros(robot.nv, bool), free_blind
+        if transform != "none":
+            pos, jac = robot.jacobians(q)
+            gauge = _gauge_directions(pos, jac, w3, None, False) & ~blind
+            q, free = _hold(robot, q, blind, gauge, False)
+            view = _align(robot.positions(q), X, w3, transform)  # the hold turned the robot: turn the view back
+        q, view, rn, pos, conv, it = _sequence_lm(robot, q, X, w3, view, free, free_sim, max_iter, tol, None)
+        n_iter += it + n_iter_a
+        candidates.append(dict(sign=sign, q=q, view=view, rms=float(np.sqrt((w3 * rn ** 2).sum() / w3.sum())),
+                               conv=conv, gauge=gauge, pos=pos))
+    candidates.sort(key=lambda c: c["rms"])
+    best = candidates[0]
+    gauge = best["gauge"]
+    timings["fit_3d"] = time.perf_counter() - t0
+
+    # ---- step 2: refine on the tracks; both mirrors unless the 3D fit told them apart clearly
+    residual_px = cams = ts2 = None
+    converged = best["conv"]
+    if refine and tracks is not None:
+        t1 = time.perf_counter()
+        w2 = np.isfinite(tracks).all(-1).astype(float) * (1.0 if confidence is None else confidence)
+        if (w2 > 0).sum() < 6:
+            raise TrackError(f"the tracks have {int((w2 > 0).sum())} usable points; the camera needs at least 6")
+        results = []
+        for c in [c for c in candidates if c["rms"] <= 3 * best["rms"] + 1e-12]:
+            P0, t20 = _affine_camera(c["pos"], tracks, w2, per_frame)
+            pos, jac = robot.jacobians(c["q"])
+            g2 = (_gauge_directions(pos, jac, w2, P0, per_frame) | c["gauge"]) & ~blind
+            q, free = _hold(robot, c["q"], blind, g2 if per_frame else c["gauge"], per_frame)
+            views = [_camera_to_rotation(P) for P in (P0 if per_frame else P0[:1])]
+            view = _View(np.array([v[0] for v in views]), np.array([v[1] for v in views]),
+                         t20 if per_frame else t20[:1], np.arange(F) if per_frame else np.zeros(F, int))
+            rn0 = np.linalg.norm(view.apply(pos)[0] - np.nan_to_num(tracks), axis=-1)
+            delta = (_robust_scale(rn0, w2, 1e-6) if loss_scale_px is None else
+                     (float(loss_scale_px) if loss_scale_px > 0 else None))
+            out = _sequence_lm(robot, q, tracks, w2, view, free, np.ones(6, bool), max_iter, tol, delta)
+            n_iter += out[-1]
+            results.append((float((w2 * out[2] ** 2).sum()), out, c, g2))
+        _, (q, view, rn, pos_base, conv2, _), best, gauge = min(results, key=lambda r: r[0])
+        converged = best["conv"] & conv2
+        residual_px = _rms_per_frame(rn, w2)
+        cams = view.matrices()
+        ts2 = view.T[view.cam_of].copy()
+        timings["refine_2d"] = time.perf_counter() - t1
+    else:
+        q, pos_base = best["q"], best["pos"]
+
+    # ---- report in the reconstruction's frame: X = s R x + t (the mirror folded into R)
+    X = best["sign"] * Xz
+    if transform == "none":
+        s, R, t = 1.0, np.eye(3), np.zeros(3)
+    else:
+        s, R, t = similarity_align(pos_base, X, w3)
+        s = s if transform == "similarity" else 1.0
+    R, t = best["sign"] * R, best["sign"] * t
+    positions = s * pos_base @ R.T + t
+    residual_3d = _rms_per_frame(np.linalg.norm(positions - Xz, axis=-1), w3)
+    observable = np.ones(robot.nq, bool)
+    relative = np.zeros(robot.nq, bool)
+    for v in np.flatnonzero(blind | gauge):
+        qi = robot.q_of_v[v]
+        if qi >= 0:
+            observable[qi] = False
+            relative[qi] = bool(gauge[v] and not blind[v] and not per_frame)
+    notes = _notes(robot, blind, gauge & ~blind, per_frame)
+    msg = "; ".join(notes) if notes else "all joints observable"
+    if best["sign"] < 0:
+        msg += "; the depth-mirrored poses fitted better"
+    converged = np.broadcast_to(np.asarray(converged, bool), (F,)).copy()
+    if not converged.all():
+        msg = "the solver stopped before it converged; " + msg
+        warnings.warn(f"fit_joint_angles: {msg}", ConvergenceWarning, stacklevel=2)
+    timings["total"] = time.perf_counter() - t0
+    return JointFit(
+        q=q, joint_names=list(robot.joint_names), observable=observable, positions=positions,
+        residual_3d=residual_3d, residual_px=residual_px, converged=converged, scale=float(s), rotation=R,
+        translation=t, cameras=cams, translations_2d=ts2, chain=chain, urdf_path=urdf,
+        message=msg, n_iter=int(n_iter), relative=relative,
+        tracks=tracks, confidence=confidence, positions_base=pos_base, timings=timings,
+    )

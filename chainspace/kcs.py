@@ -1,0 +1,197 @@
+"""The Kinematic Chain Space factorization: Algorithm 1 of Wandt, Ackermann and Rosenhahn (2017).
+
+Symbols (per frame k, chain matrices from :class:`~chainspace.chain.KinematicChain`):
+
+* ``W`` observed 2D tracks (2 x J per frame), ``C`` (J x L) maps joints to links (bones ``B = X C``),
+  ``D`` (n_bones x J) maps bones back to joints (``X = B D``, root at the origin).
+* ``X0`` the initial pose (3 x J), ``B0 = X0 C`` its bones.
+* ``P_k = s_k R_k[:2]`` the weak-perspective camera of frame k (rows orthogonal, equal norms).
+* ``Q`` (3K x J) the pose basis: the first 3K right singular vectors of ``W - P X0`` (translation
+  removed per frame); ``S = Q C`` (3K x L) the same basis in the KCS.
+* ``A_k`` (3 x 3K) the transformation of frame k; ``A`` stacks them to (3F x 3K). The bones are
+  ``B_k = A_k S + B0``.
+
+The algorithm starts from ``A = 0`` and alternates (a) the per-frame cameras that best map ``B_k`` to
+``W_k C`` (:func:`chainspace.camera.fit_cameras`) and (b) ``min ||A||_*  s.t.  W C = P (A S + B0)``.
+Step (b) is solved in its penalty form ``min tau ||A||_* + 1/2 sum_k ||(W_k C - P_k (A_k S + B0)) w_k||^2``
+by accelerated proximal gradient (FISTA; the proximal map of the nuclear norm is singular value
+thresholding, SVT) with ``tau`` decreasing geometrically towards zero (a continuation schedule), so
+that the equality holds at the end as far as the data allow. The singular values of the (3F x 3K)
+matrix ``A`` come from its 3K x 3K Gram matrix, so an iteration costs O(F K L).
+
+Missing points (NaN) and confidences enter as weights on the bones of the data term: a bone's
+weight is the smaller confidence of its two joints, 0 when either is missing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .camera import fit_cameras
+
+__all__ = ["kcs_factorize", "KCSResult", "bone_observations", "fit_translations", "reprojection_rms"]
+
+
+@dataclass
+class KCSResult:
+    """Output of :func:`kcs_factorize`. Poses are root-relative (F, J, 3) in the units of ``X0``."""
+
+    poses: np.ndarray
+    cameras: np.ndarray
+    scales: np.ndarray
+    rotations: np.ndarray
+    translations: np.ndarray
+    A: np.ndarray
+    S: np.ndarray
+    n_iter: int
+    converged: bool
+    history: dict[str, list[float]] = field(default_factory=dict)
+
+
+def bone_observations(chain: Any, tracks: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """2D links ``W C`` as (F, L, 2) with NaN replaced by 0, and their weights (F, L)."""
+    C = chain.C
+    seen = np.isfinite(tracks).all(-1)
+    w = np.where(seen, weights, 0.0)
+    Wz = np.where(seen[..., None], tracks, 0.0)
+    Wb = np.einsum("jl,fjc->flc", C, Wz)
+    parent = np.argmin(C, axis=0)
+    child = np.argmax(C, axis=0)
+    wb = np.minimum(w[:, parent], w[:, child])
+    return np.where(wb[..., None] > 0, Wb, 0.0), wb
+
+
+def fit_translations(tracks: np.ndarray, weights: np.ndarray, poses: np.ndarray, cameras: np.ndarray) -> np.ndarray:
+    """(F, 2) weighted least-squares image translations t_k with tracks ~= poses @ P^T + t."""
+    pred = poses @ np.swapaxes(cameras, -1, -2)
+    seen = np.isfinite(tracks).all(-1)
+    w = np.where(seen, weights, 0.0)
+    diff = np.where(seen[..., None], tracks - pred, 0.0)
+    n = w.sum(-1, keepdims=True)
+    return (w[..., None] * diff).sum(1) / np.where(n > 0, n, 1.0)
+
+
+def reprojection_rms(tracks, weights, poses, cameras, translations) -> float:
+    """Weighted RMS distance (image units) between tracks and reprojected poses."""
+    pred = poses @ np.swapaxes(cameras, -1, -2) + translations[:, None, :]
+    seen = np.isfinite(tracks).all(-1)
+    w = np.where(seen, weights, 0.0)
+    d2 = np.where(seen, ((np.where(seen[..., None], tracks, 0.0) - pred) ** 2).sum(-1), 0.0)
+    return float(np.sqrt((w * d2).sum() / max(w.sum(), 1e-300)))
+
+
+def _pose_basis(tracks, weights, P, X0, n_basis):
+    """Q (3K x J): leading right singular vectors of W - P X0, each frame's translation removed."""
+    seen = np.isfinite(tracks).all(-1)
+    w = np.where(seen, weights, 0.0)
+    What = np.where(seen[..., None], tracks - X0 @ np.swapaxes(P, -1, -2), 0.0)  # (F, J, 2)
+    n = w.sum(-1, keepdims=True)[..., None]
+    mean = (w[..., None] * What).sum(1, keepdims=True) / np.where(n > 0, n, 1.0)
+    What = np.where(seen[..., None], What - mean, 0.0) * np.sqrt(w)[..., None]
+    M = np.swapaxes(What, 1, 2).reshape(-1, What.shape[1])  # (2F, J)
+    evals, evecs = np.linalg.eigh(M.T @ M)
+    k = min(n_basis, M.shape[1])
+    return evecs[:, ::-1][:, :k].T.copy()
+
+
+def _svt(A: np.ndarray, tau: float) -> tuple[np.ndarray, float]:
+    """Singular value thresholding of the stacked (3F x 3K) matrix A given as (F, 3, 3K)."""
+    M = A.reshape(-1, A.shape[-1])
+    evals, V = np.linalg.eigh(M.T @ M)
+    sig = np.sqrt(np.maximum(evals, 0.0))
+    shrunk = np.maximum(sig - tau, 0.0)
+    gain = np.where(sig > 0, shrunk / np.where(sig > 0, sig, 1.0), 0.0)
+    out = (M @ (V * gain) @ V.T).reshape(A.shape)
+    return out, float(shrunk.sum())
+
+
+def _solve_A(A, P, S, R, wb, n_steps, tau_start, tau_end):
+    """FISTA on tau ||A||_* + 1/2 sum_k || (P_k A_k S - R_k) sqrt(w_k) ||^2 with tau going tau_start -> tau_end."""
+    F = A.shape[0]
+    # Lipschitz constant of the gradient: max_k s_k^2 * lambda_max(S diag(w_k) S^T), bounded by the trace.
+    s2 = (P**2).sum(-1).max(-1)
+    SwS = np.einsum("il,fl,jl->fij", S, wb, S)
+    lip = float((s2 * np.linalg.eigvalsh(SwS)[:, -1]).max())
+    if lip <= 0:
+        return A
+    step = 1.0 / lip
+    taus = np.geomspace(tau_start, tau_end, n_steps) if n_steps > 1 else [tau_end]
+    Y, A_prev, t = A.copy(), A.copy(), 1.0
+    Pt = np.swapaxes(P, -1, -2)
+    for tau in taus:
+        PY = P @ Y  # (F, 2, 3K)
+        res = (PY.reshape(2 * F, -1) @ S).reshape(F, 2, -1) - R  # (F, 2, L)
+        grad = Pt @ ((res * wb[:, None, :]).reshape(2 * F, -1) @ S.T).reshape(F, 2, -1)
+        A_new, _ = _svt(Y - step * grad, step * tau)
+        t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
+        Y = A_new + ((t - 1.0) / t_new) * (A_new - A_prev)
+        A_prev, t = A_new, t_new
+    return A_prev
+
+
+def kcs_factorize(
+    tracks: np.ndarray,
+    weights: np.ndarray,
+    chain: Any,
+    X0: np.ndarray,
+    *,
+    n_basis: int | None = None,
+    max_iter: int = 10,
+    tol: float = 1e-3,
+    svt_steps: int = 40,
+    tau_range: tuple[float, float] = (1e-1, 1e-4),
+    truth: np.ndarray | None = None,
+    error_fn: Any = None,
+) -> KCSResult:
+    """Algorithm 1 on tracks (F, J, 2) with weights (F, J) in [0, 1] (0 where NaN).
+
+    ``n_basis`` is 3K, the rank of the pose basis (default: the number of joints minus one, capped
+    at 15). ``tau_range`` gives the SVT threshold schedule relative to the spectral norm of the first
+    gradient. Convergence: the relative change of the reprojection RMS falls below ``tol``.
+    History keys: ``reprojection`` (image units, one entry per iteration, entry 0 = initial pose) and,
+    with ``truth`` and ``error_fn``, ``error_3d``.
+    """
+    F, J = tracks.shape[:2]
+    C = chain.C
+    B0 = (C.T @ X0).T  # (3, L)
+    Wb, wb = bone_observations(chain, tracks, weights)
+    Wb_cols = np.swapaxes(Wb, 1, 2)  # (F, 2, L)
+    P, s, Rot = fit_cameras(Wb, B0.T, wb, return_rotation=True)
+    k3 = int(n_basis) if n_basis else min(J - 1, 15)
+    Q = _pose_basis(tracks, weights, P, X0, k3)
+    S = Q @ C  # (3K, L)
+    A = np.zeros((F, 3, Q.shape[0]))
+    hist: dict[str, list[float]] = {"reprojection": []}
+
+    def record(A, P):
+        B = A @ S + B0  # (F, 3, L)
+        X = chain.poses_from_bones(np.swapaxes(B, 1, 2))
+        t = fit_translations(tracks, weights, X, P)
+        hist["reprojection"].append(reprojection_rms(tracks, weights, X, P, t))
+        if truth is not None and error_fn is not None:
+            hist.setdefault("error_3d", []).append(float(error_fn(X, truth)))
+        return X, t
+
+    X, t = record(A, P)
+    # The threshold scale: spectral norm of the gradient at A = 0 (where every singular value would
+    # be thresholded away if tau were larger).
+    R = Wb_cols - P @ B0
+    g0 = np.swapaxes(P, -1, -2) @ ((R * wb[:, None, :]).reshape(2 * F, -1) @ S.T).reshape(F, 2, -1)
+    g0n = float(np.sqrt(max(np.linalg.eigvalsh(g0.reshape(-1, g0.shape[-1]).T @ g0.reshape(-1, g0.shape[-1]))[-1], 0)))
+    tau_hi, tau_lo = tau_range[0] * g0n, tau_range[1] * g0n
+    taus = np.geomspace(tau_hi, tau_lo, max_iter + 1)
+    converged, it = False, 0
+    for it in range(1, max_iter + 1):
+        R = Wb_cols - P @ B0
+        A = _solve_A(A, P, S, R, wb, svt_steps, taus[it - 1], taus[it])
+        B = A @ S + B0
+        P, s, Rot = fit_cameras(Wb, np.swapaxes(B, 1, 2), wb, return_rotation=True, R0=Rot, n_iter=3)
+        X, t = record(A, P)
+        r0, r1 = hist["reprojection"][-2], hist["reprojection"][-1]
+        if abs(r0 - r1) <= tol * max(r0, 1e-12) and it >= 2:
+            converged = True
+            break
+    return KCSResult(X, P, s, Rot, t, A, S, it, converged, hist)

@@ -1,0 +1,390 @@
+"""Writing results to disk safely, and reading them back.
+
+Every file chainspace writes goes through :func:`atomic_write`: the content goes to a temporary file
+in the target's folder, which is renamed over the target only once it is complete. An interrupted run
+leaves the old file (or no file) in place, never half a file. An existing file is replaced only when
+``overwrite=True`` (``--overwrite`` on the command line).
+
+:func:`save_results` writes a reconstruction (:class:`chainspace.reconstruct.Reconstruction`), a
+robot joint-angle fit (:class:`chainspace.fit.JointFit`) or a validation report
+(:class:`chainspace.validate.ValidationReport`) as
+
+* ``<stem>.npz``: every array, loadable with :func:`load_results`;
+* ``<stem>.csv``: a table (3D joint positions ``frame,joint,x,y,z`` in metres, or the joint angles
+  ``frame,<joint names>`` in radians or metres for prismatic joints);
+* ``<stem>.json``: a summary (convergence, iterations, timings, errors, names, units).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import json
+import math
+import os
+import tempfile
+from collections.abc import Iterable, Iterator, Sequence
+from pathlib import Path
+from types import SimpleNamespace
+from typing import IO, Any
+
+import numpy as np
+
+from .errors import ChainspaceError, DescriptionNotFoundError, OutputExistsError, TrackError
+
+__all__ = ["atomic_write", "check_writable", "save_results", "load_results", "to_jsonable", "write_json"]
+
+UNITS = {"positions": "m", "bone_lengths": "m", "angles": "rad (revolute) or m (prismatic)",
+         "tracks": "px (image units of the input)", "time": "s"}
+
+
+def check_writable(paths: Iterable[str | os.PathLike], overwrite: bool = False) -> None:
+    """Raise :class:`OutputExistsError` if any of ``paths`` exists and ``overwrite`` is False.
+
+    Called before a multi-file write so that a refusal happens before the first file is written.
+    """
+    if overwrite:
+        return
+    existing = [str(p) for p in paths if Path(p).exists()]
+    if existing:
+        what = existing[0] if len(existing) == 1 else f"{existing[0]} (and {len(existing) - 1} more)"
+        raise OutputExistsError(f"{what} already exists; pass overwrite=True (--overwrite) to replace it")
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | os.PathLike, mode: str = "w", overwrite: bool = False,
+                 *, encoding: str = "utf-8", newline: str | None = None) -> Iterator[IO[Any]]:
+    """Open ``path`` for writing through a temporary file renamed into place on success.
+
+    ``mode`` is ``"w"`` (text, ``encoding``) or ``"wb"`` (bytes). The temporary file lives in the same
+    folder (so the final ``os.replace`` is atomic); parent folders are created. If the block raises,
+    the temporary file is removed and ``path`` is untouched. Raises :class:`OutputExistsError` when
+    ``path`` exists and ``overwrite`` is False.
+    """
+    if mode not in ("w", "wb"):
+        raise ValueError(f"atomic_write mode must be 'w' or 'wb', not {mode!r}")
+    target = Path(path)
+    check_writable([target], overwrite)
+    if target.is_dir():
+        raise OutputExistsError(f"{target} is a folder; give a file name")
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent)
+    except OSError as exc:
+        raise ChainspaceError(f"cannot write {target}: {exc.strerror or exc}") from None
+    try:
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the file the usual permissions
+        kwargs = {} if mode == "wb" else {"encoding": encoding, "newline": newline}
+        with os.fdopen(fd, mode, **kwargs) as f:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
+        check_writable([target], overwrite)  # another process may have created it meanwhile
+        os.replace(tmp, target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+# ---------------------------------------------------------------------------------------- JSON
+def to_jsonable(value: Any) -> Any:
+    """``value`` with numpy scalars/arrays as Python numbers/lists and NaN/inf as None (strict JSON)."""
+    if isinstance(value, dict):
+        return {str(k): to_jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [to_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return to_jsonable(value.tolist())
+    if isinstance(value, (np.bool_, bool)):
+        return bool(value)
+    if isinstance(value, (np.integer, int)):
+        return int(value)
+    if isinstance(value, (np.floating, float)):
+        v = float(value)
+        return v if math.isfinite(v) else None
+    if isinstance(value, (str, type(None))):
+        return value
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    return str(value)
+
+
+def write_json(path: str | os.PathLike, data: Any, *, overwrite: bool = False) -> Path:
+    """Write ``data`` as indented strict JSON through :func:`atomic_write`."""
+    with atomic_write(path, "w", overwrite) as f:
+        json.dump(to_jsonable(data), f, indent=2, allow_nan=False)
+        f.write("\n")
+    return Path(path)
+
+
+# ---------------------------------------------------------------------------------------- kinds
+def _kind(obj: Any) -> str:
+    if hasattr(obj, "q") and hasattr(obj, "joint_names"):
+        return "joint_fit"
+    if hasattr(obj, "poses") and hasattr(obj, "cameras"):
+        return "reconstruction"
+    if hasattr(obj, "to_dict") and hasattr(obj, "passed"):
+        return "validation"
+    raise TrackError(
+        f"save_results cannot save a {type(obj).__name__}: expected a Reconstruction, a JointFit or a "
+        "ValidationReport"
+    )
+
+
+_STEMS = {"reconstruction": "reconstruction", "joint_fit": "joint_angles", "validation": "validation"}
+_SUFFIXES = {".npz", ".csv", ".json", ".md"}
+
+
+def _stem_path(out: str | os.PathLike, kind: str) -> Path:
+    out = Path(out)
+    if out.suffix.lower() in _SUFFIXES:
+        return out.with_suffix("")
+    return out / _STEMS[kind]
+
+
+def _chain_arrays(chain: Any) -> dict[str, np.ndarray]:
+    if chain is None:
+        return {}
+    arrays = {"joints": np.array(chain.joints, dtype=str),
+              "bones": np.array(chain.bones, dtype=str).reshape(-1, 2),
+              "chain_name": np.array(str(chain.name))}
+    if getattr(chain, "rigid_links", ()):
+        arrays["rigid_links"] = np.array(chain.rigid_links, dtype=str).reshape(-1, 2)
+    if chain.rest_pose is not None:
+        arrays["rest_pose"] = np.asarray(chain.rest_pose)
+    return arrays
+
+
+def _array_or_none(value: Any) -> np.ndarray | None:
+    return None if value is None else np.asarray(value)
+
+
+def _final(history: dict, key: str) -> dict[str, float]:
+    """Last value of ``history[stage][key]`` per stage."""
+    out = {}
+    for stage, series in (history or {}).items():
+        values = (series or {}).get(key)
+        if values is not None and len(values):
+            out[stage] = float(values[-1])
+    return out
+
+
+def _reconstruction_summary(rec: Any) -> dict[str, Any]:
+    chain = getattr(rec, "chain", None)
+    history = getattr(rec, "history", {}) or {}
+    errors: dict[str, Any] = {}
+    try:
+        errors["reprojection_rms"] = float(rec.reprojection_error())
+    except (AttributeError, TypeError, ValueError):
+        pass
+    errors["reprojection_by_stage"] = _final(history, "reprojection")
+    error_3d = _final(history, "error_3d")
+    if error_3d:
+        errors["error_3d_by_stage_m"] = error_3d
+    poses = np.asarray(rec.poses)
+    return {
+        "kind": "reconstruction",
+        "chain": None if chain is None else chain.name,
+        "method": getattr(rec, "method", None),
+        "converged": bool(getattr(rec, "converged", False)),
+        "n_iter": int(getattr(rec, "n_iter", 0)),
+        "message": getattr(rec, "message", ""),
+        "n_frames": int(poses.shape[0]),
+        "n_joints": int(poses.shape[1]),
+        "joints": list(chain.joints) if chain is not None else None,
+        "bone_lengths_m": _array_or_none(getattr(rec, "bone_lengths", None)),
+        "timings_s": getattr(rec, "timings", {}) or {},
+        "errors": errors,
+        "history": history,
+        "units": {"poses": "m", "bone_lengths": "m", "reprojection": "image units (px) RMS",
+                  "error_3d": "m", "timings": "s"},
+    }
+
+
+def _fit_summary(fit: Any) -> dict[str, Any]:
+    conv = np.asarray(getattr(fit, "converged", []), dtype=bool)
+    res3 = _array_or_none(getattr(fit, "residual_3d", None))
+    respx = _array_or_none(getattr(fit, "residual_px", None))
+
+    def stats(x: np.ndarray | None, scale: float) -> dict[str, float] | None:
+        if x is None or not np.isfinite(x).any():
+            return None
+        x = x[np.isfinite(x)] * scale
+        return {"mean": float(x.mean()), "max": float(x.max()), "rms": float(np.sqrt((x**2).mean()))}
+
+    q = np.asarray(fit.q)
+    return {
+        "kind": "joint_fit",
+        "urdf_path": getattr(fit, "urdf_path", None),
+        "n_frames": int(q.shape[0]),
+        "joint_names": list(fit.joint_names),
+        "observable": _array_or_none(getattr(fit, "observable", None)),
+        "converged_fraction": float(conv.mean()) if conv.size else None,
+        "n_iter": getattr(fit, "n_iter", None),
+        "message": getattr(fit, "message", ""),
+        "scale": getattr(fit, "scale", None),
+        "residual_3d_mm": stats(res3, 1000.0),
+        "residual_px": stats(respx, 1.0),
+        "units": {"q": "rad (revolute) or m (prismatic)", "positions": "m", "residual_3d": "m",
+                  "residual_px": "px"},
+    }
+
+
+def _reconstruction_arrays(rec: Any) -> dict[str, np.ndarray]:
+    arrays = {
+        "kind": np.array("reconstruction"),
+        "poses": np.asarray(rec.poses, dtype=float),
+        "cameras": np.asarray(rec.cameras, dtype=float),
+        "translations": np.asarray(rec.translations, dtype=float),
+        "bone_lengths": np.asarray(rec.bone_lengths, dtype=float),
+    }
+    for name in ("tracks", "confidence"):
+        value = getattr(rec, name, None)
+        if value is not None:
+            arrays[name] = np.asarray(value, dtype=float)
+    arrays.update(_chain_arrays(getattr(rec, "chain", None)))
+    return arrays
+
+
+def _fit_arrays(fit: Any) -> dict[str, np.ndarray]:
+    arrays = {"kind": np.array("joint_fit"), "q": np.asarray(fit.q, dtype=float),
+              "joint_names": np.array(list(fit.joint_names), dtype=str)}
+    for name in ("observable", "positions", "residual_3d", "residual_px", "converged", "scale", "rotation",
+                 "translation", "cameras", "translations_2d"):
+        value = getattr(fit, name, None)
+        if value is not None:
+            arrays[name] = np.asarray(value)
+    if getattr(fit, "urdf_path", None) is not None:
+        arrays["urdf_path"] = np.array(str(fit.urdf_path))
+    arrays.update(_chain_arrays(getattr(fit, "chain", None)))
+    return arrays
+
+
+def _positions_csv(f: IO[str], poses: np.ndarray, joints: Sequence[str]) -> None:
+    F, J, _ = poses.shape
+    w = csv.writer(f, lineterminator="\n")
+    w.writerow(["frame", "joint", "x", "y", "z"])
+    frames = np.repeat(np.arange(F), J)
+    names = np.tile(np.asarray(joints, dtype=object), F)
+    flat = poses.reshape(-1, 3)
+    w.writerows(zip(frames.tolist(), names.tolist(), *(flat[:, k].tolist() for k in range(3)), strict=True))
+
+
+def _angles_csv(f: IO[str], q: np.ndarray, names: Sequence[str]) -> None:
+    w = csv.writer(f, lineterminator="\n")
+    w.writerow(["frame", *names])
+    w.writerows([[i, *row] for i, row in enumerate(q.tolist())])
+
+
+def save_results(obj: Any, out: str | os.PathLike, *, overwrite: bool = False,
+                 formats: Sequence[str] = ("npz", "csv", "json")) -> list[Path]:
+    """Save a Reconstruction, a JointFit or a ValidationReport; return the paths written.
+
+    ``out`` is a folder (files ``reconstruction.*``, ``joint_angles.*`` or ``validation.*`` inside
+    it) or a file path whose suffix is replaced by each format's. ``formats`` picks among ``"npz"``,
+    ``"csv"`` and ``"json"`` (a ValidationReport is always written as ``.json`` and a markdown
+    ``.md`` table). Nothing is written if any target exists and ``overwrite`` is False.
+    """
+    kind = _kind(obj)
+    stem = _stem_path(out, kind)
+    formats = ("json", "md") if kind == "validation" else tuple(formats)
+    unknown = set(formats) - {"npz", "csv", "json", "md"}
+    if unknown:
+        raise TrackError(f"unknown result format(s) {', '.join(sorted(unknown))}; use npz, csv, json")
+    paths = {fmt: stem.with_name(f"{stem.name}.{fmt}") for fmt in formats}
+    check_writable(paths.values(), overwrite)
+
+    if kind == "validation":
+        write_json(paths["json"], obj.to_dict(), overwrite=overwrite)
+        with atomic_write(paths["md"], "w", overwrite) as f:
+            f.write(obj.table().rstrip() + "\n")
+        return list(paths.values())
+
+    arrays = _reconstruction_arrays(obj) if kind == "reconstruction" else _fit_arrays(obj)
+    summary = _reconstruction_summary(obj) if kind == "reconstruction" else _fit_summary(obj)
+    for fmt, path in paths.items():
+        if fmt == "npz":
+            arrays["summary_json"] = np.array(json.dumps(to_jsonable(summary), allow_nan=False))
+            with atomic_write(path, "wb", overwrite) as f:
+                np.savez_compressed(f, **arrays)
+        elif fmt == "json":
+            write_json(path, summary, overwrite=overwrite)
+        elif fmt == "csv":
+            with atomic_write(path, "w", overwrite, newline="") as f:
+                if kind == "reconstruction":
+                    joints = arrays.get("joints", [f"joint{j}" for j in range(arrays["poses"].shape[1])])
+                    _positions_csv(f, arrays["poses"], list(joints))
+                else:
+                    _angles_csv(f, arrays["q"], list(arrays["joint_names"]))
+    return list(paths.values())
+
+
+def _chain_from_arrays(data: dict[str, np.ndarray]) -> Any:
+    if "joints" not in data:
+        return None
+    from .chain import KinematicChain
+
+    rigid = [tuple(p) for p in data["rigid_links"].tolist()] if "rigid_links" in data else ()
+    return KinematicChain(
+        data["joints"].tolist(), [tuple(p) for p in data["bones"].tolist()], data.get("rest_pose"), rigid,
+        name=str(data["chain_name"]) if "chain_name" in data else None,
+    )
+
+
+def load_results(path: str | os.PathLike) -> SimpleNamespace:
+    """Read an NPZ written by :func:`save_results` back.
+
+    Returns a namespace with the same attribute names as the saved object (``poses``, ``cameras``,
+    ``translations``, ... for a reconstruction; ``q``, ``joint_names``, ... for a joint fit), plus
+    ``kind`` (``"reconstruction"`` or ``"joint_fit"``), ``chain`` (a KinematicChain rebuilt from the
+    saved joint and bone names) and the summary's fields (``converged``, ``n_iter``, ``message``,
+    ``history``, ``timings``). Plots and the viewer accept it in place of the original object.
+    """
+    path = Path(path)
+    if path.is_dir():
+        found = sorted(path.glob("*.npz"))
+        if len(found) != 1:
+            raise TrackError(f"{path}: expected one .npz result in the folder, found {len(found)}")
+        path = found[0]
+    if not path.exists():
+        raise DescriptionNotFoundError(f"{path}: no such result file")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            data = {k: npz[k] for k in npz.files}
+    except (OSError, ValueError, EOFError) as exc:
+        raise TrackError(f"{path}: not a chainspace result NPZ ({exc})") from None
+    if "kind" not in data:
+        raise TrackError(f"{path}: not a chainspace result NPZ (no 'kind' entry)")
+    summary = json.loads(str(data.pop("summary_json"))) if "summary_json" in data else {}
+    kind = str(data.pop("kind"))
+    ns = SimpleNamespace(kind=kind, summary=summary, source=path)
+    ns.chain = _chain_from_arrays(data)
+    for k in ("joints", "bones", "rigid_links", "rest_pose", "chain_name"):
+        data.pop(k, None)
+    for k, v in data.items():
+        setattr(ns, k, str(v) if v.dtype.kind == "U" and v.ndim == 0 else v)
+    if kind == "reconstruction":
+        ns.confidence = data.get("confidence")
+        ns.tracks = data.get("tracks")
+        ns.method = summary.get("method")
+        ns.converged = bool(summary.get("converged", False))
+        ns.n_iter = summary.get("n_iter", 0)
+        ns.message = summary.get("message", "")
+        ns.history = summary.get("history", {}) or {}
+        ns.timings = summary.get("timings_s", {}) or {}
+    else:
+        ns.joint_names = data["joint_names"].tolist()
+        ns.message = summary.get("message", "")
+        ns.n_iter = summary.get("n_iter")
+        for k in ("residual_px", "cameras", "translations_2d", "urdf_path"):
+            if not hasattr(ns, k):
+                setattr(ns, k, None)
+    return ns
+

@@ -1,0 +1,40 @@
+"""Shared test fixtures (keep small)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    """A seeded generator: tests are deterministic."""
+    return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session")
+def milling_arm_urdf() -> Path:
+    """The shipped milling-arm URDF."""
+    from chainspace.descriptions import shipped_path
+
+    return shipped_path("milling_arm")
+
+
+@pytest.fixture(scope="session")
+def example_urdf():
+    """``example_urdf(name)`` -> Path of an example-robot-data URDF, or skip the test cleanly."""
+    from chainspace.errors import ChainspaceError
+
+    def find(name: str) -> Path:
+        from chainspace.descriptions import example_robot_urdf
+
+        try:
+            return example_robot_urdf(name)
+        except ChainspaceError as exc:
+            pytest.skip(str(exc))
+
+    return find

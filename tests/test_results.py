@@ -1,0 +1,112 @@
+"""atomic_write never leaves partial files and refuses to overwrite; results round-trip."""
+
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from chainspace.chain import KinematicChain
+from chainspace.errors import ChainspaceError, OutputExistsError
+from chainspace.results import atomic_write, load_results, save_results
+
+
+def _chain() -> KinematicChain:
+    return KinematicChain(["root", "a", "b"], [("root", "a"), ("a", "b")], name="toy")
+
+
+def _reconstruction(F: int = 4) -> SimpleNamespace:
+    rng = np.random.default_rng(0)
+    poses = rng.normal(size=(F, 3, 3))
+    cams = np.tile(np.eye(3)[:2], (F, 1, 1))
+    return SimpleNamespace(
+        poses=poses, cameras=cams, translations=np.zeros((F, 2)), bone_lengths=np.array([1.0, 0.5]),
+        tracks=poses[..., :2], confidence=None, chain=_chain(), method="default", converged=True, n_iter=7,
+        message="converged", history={"kcs": {"reprojection": [3.0, 1.0, 0.5], "error_3d": [0.2, 0.1]}},
+        timings={"kcs": 0.01}, reprojection_error=lambda: 0.5,
+    )
+
+
+def test_atomic_write_writes_and_refuses_to_overwrite(tmp_path):
+    target = tmp_path / "sub" / "out.txt"
+    with atomic_write(target) as f:
+        f.write("first")
+    assert target.read_text() == "first"
+    with pytest.raises(OutputExistsError, match="out.txt.*overwrite"):
+        with atomic_write(target) as f:
+            f.write("second")
+    assert target.read_text() == "first"
+    with atomic_write(target, "w", overwrite=True) as f:
+        f.write("third")
+    assert target.read_text() == "third"
+    assert sorted(p.name for p in target.parent.iterdir()) == ["out.txt"]
+
+
+def test_atomic_write_leaves_target_untouched_on_error(tmp_path):
+    target = tmp_path / "out.bin"
+    target.write_bytes(b"old")
+    with pytest.raises(RuntimeError):
+        with atomic_write(target, "wb", overwrite=True) as f:
+            f.write(b"partial")
+            raise RuntimeError("interrupted")
+    assert target.read_bytes() == b"old"
+    new = tmp_path / "new.bin"
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_write(new, "wb") as f:
+            f.write(b"partial")
+            raise KeyboardInterrupt
+    assert not new.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.bin"]
+
+
+def test_save_and_load_reconstruction(tmp_path):
+    rec = _reconstruction()
+    paths = save_results(rec, tmp_path)
+    assert sorted(p.name for p in paths) == ["reconstruction.csv", "reconstruction.json", "reconstruction.npz"]
+    back = load_results(tmp_path / "reconstruction.npz")
+    np.testing.assert_allclose(back.poses, rec.poses)
+    np.testing.assert_allclose(back.cameras, rec.cameras)
+    assert back.chain.joints == rec.chain.joints and back.chain.bones == rec.chain.bones
+    assert back.converged and back.n_iter == 7 and back.history["kcs"]["reprojection"] == [3.0, 1.0, 0.5]
+    summary = json.loads((tmp_path / "reconstruction.json").read_text())
+    assert summary["errors"]["reprojection_rms"] == 0.5
+    assert summary["errors"]["error_3d_by_stage_m"] == {"kcs": 0.1}
+    assert summary["joints"] == ["root", "a", "b"] and summary["units"]["poses"] == "m"
+    lines = (tmp_path / "reconstruction.csv").read_text().splitlines()
+    assert lines[0] == "frame,joint,x,y,z" and len(lines) == 1 + 4 * 3
+    f, j, *xyz = lines[1 + 3 * 2 + 1].split(",")
+    assert (f, j) == ("2", "a")
+    np.testing.assert_allclose([float(v) for v in xyz], rec.poses[2, 1])
+    # a second save refuses before writing anything, and --overwrite replaces all
+    with pytest.raises(OutputExistsError):
+        save_results(rec, tmp_path)
+    rec.n_iter = 9
+    save_results(rec, tmp_path / "reconstruction.npz", overwrite=True)
+    assert load_results(tmp_path).n_iter == 9
+
+
+def test_save_joint_fit(tmp_path):
+    F = 5
+    fit = SimpleNamespace(q=np.linspace(0, 1, F * 2).reshape(F, 2), joint_names=["j1", "j2"],
+                          observable=np.array([True, False]), positions=np.zeros((F, 3, 3)),
+                          residual_3d=np.full(F, 0.002), residual_px=None, converged=np.ones(F, bool), scale=1.0,
+                          rotation=np.eye(3), translation=np.zeros(3), cameras=None, translations_2d=None,
+                          chain=_chain(), urdf_path="arm.urdf", message="ok", n_iter=3)
+    save_results(fit, tmp_path / "fit")
+    header, *rows = (tmp_path / "fit" / "joint_angles.csv").read_text().splitlines()
+    assert header == "frame,j1,j2" and len(rows) == F
+    np.testing.assert_allclose([float(v) for v in rows[-1].split(",")[1:]], fit.q[-1])
+    summary = json.loads((tmp_path / "fit" / "joint_angles.json").read_text())
+    assert summary["residual_3d_mm"]["mean"] == pytest.approx(2.0)
+    assert summary["converged_fraction"] == 1.0
+    back = load_results(tmp_path / "fit" / "joint_angles.npz")
+    assert back.kind == "joint_fit" and back.joint_names == ["j1", "j2"] and back.urdf_path == "arm.urdf"
+    np.testing.assert_allclose(back.q, fit.q)
+
+
+def test_save_results_rejects_unknown_objects(tmp_path):
+    with pytest.raises(ChainspaceError, match="cannot save"):
+        save_results(object(), tmp_path)
+    assert list(tmp_path.iterdir()) == []
