@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
 
@@ -39,6 +39,7 @@ __all__ = ["from_asf", "load_amc", "read_asf", "AsfSkeleton", "AsfBone", "INCH"]
 INCH = 0.0254  # metres
 _ROT_DOFS = ("rx", "ry", "rz")
 _ROOT_CHANNELS = ("TX", "TY", "TZ", "RX", "RY", "RZ")
+_Items = list[tuple[int, list[str]]]  # (line number, tokens) of one ASF section
 
 
 @dataclass(frozen=True)
@@ -67,7 +68,6 @@ class AsfSkeleton:
     unit_m: float  # metres per ASF length unit
     degrees: bool  # ASF angles (axis) in degrees
     name: str = "asf"
-    bone_index: dict[str, int] = field(default_factory=dict)
 
 
 # ---------------------------------------------------------------------------------------------- ASF
@@ -136,7 +136,7 @@ def _sections(lines: list[str], src: str) -> dict[str, list[tuple[int, list[str]
     return out
 
 
-def _parse_units(items: list[tuple[int, list[str]]], src: str) -> tuple[float, bool]:
+def _parse_units(items: _Items, src: str) -> tuple[float, bool]:
     length, degrees = 1.0, True
     for no, toks in items:
         key = toks[0].lower()
@@ -151,7 +151,9 @@ def _parse_units(items: list[tuple[int, list[str]]], src: str) -> tuple[float, b
     return INCH / length, degrees
 
 
-def _parse_root(items, src, unit_m, degrees):
+def _parse_root(
+    items: _Items, src: str, unit_m: float, degrees: bool
+) -> tuple[tuple[str, ...], str, np.ndarray, np.ndarray]:
     got: dict[str, tuple[int, list[str]]] = {}
     for no, toks in items:
         got[toks[0].lower()] = (no, toks[1:])
@@ -215,7 +217,7 @@ def _parse_bone(block: list[tuple[int, list[str]]], start: int, src: str, unit_m
     return AsfBone(name, direction / max(norm, 1e-300), length * unit_m, C, dof, start)
 
 
-def _parse_bonedata(items, src, unit_m, degrees) -> list[AsfBone]:
+def _parse_bonedata(items: _Items, src: str, unit_m: float, degrees: bool) -> list[AsfBone]:
     bones: list[AsfBone] = []
     block: list[tuple[int, list[str]]] | None = None
     start = 0
@@ -246,7 +248,7 @@ def _parse_bonedata(items, src, unit_m, degrees) -> list[AsfBone]:
     return bones
 
 
-def _parse_hierarchy(items, src, names: set[str]) -> dict[str, str]:
+def _parse_hierarchy(items: _Items, src: str, names: set[str]) -> dict[str, str]:
     parent: dict[str, str] = {}
     for no, toks in items:
         if toks[0].lower() in ("begin", "end"):
@@ -296,7 +298,6 @@ def read_asf(path: str | PathLike) -> AsfSkeleton:
     return AsfSkeleton(
         src, tuple(bones), parent, root_order, root_axis, root_pos, root_C, unit_m, degrees,
         name=Path(src).stem if name in ("", "VICON") else name,
-        bone_index={b.name: i for i, b in enumerate(bones)},
     )
 
 

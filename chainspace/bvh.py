@@ -9,8 +9,8 @@ Points and units
     OFFSET is zero always coincides with its parent, so it is merged into the parent's point (the
     point keeps the name closer to the root; ``chain.metadata["merged"]`` lists what was merged).
     Positions are ``scale * file values`` in the file's own axes: the default ``scale=1.0`` reads the
-    file as metres; pass ``scale=0.01`` for a file in centimetres (e.g. the CMU BVH conversions use
-    inches times a factor; check the source), ``0.001`` for millimetres.
+    file as metres; pass ``scale=0.01`` (or ``unit="cm"``) for a file in centimetres, ``0.001`` for
+    millimetres; the BVH format itself does not say which unit a file uses.
 
 Conventions (as in bvhio and most BVH tools)
     Rotation channels are intrinsic Euler angles in degrees in the listed order (``Zrotation
@@ -24,7 +24,7 @@ from __future__ import annotations
 import os
 import re
 import tempfile
-from collections.abc import Sequence
+import warnings
 from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
@@ -90,23 +90,43 @@ def _motion_start(lines: list[str], src: str) -> int:
                 raise DescriptionError(located("unbalanced '}'", src, i + 1))
     if depth != 0:
         raise DescriptionError(located(f"{depth} unclosed '{{' in HIERARCHY", src, motion + 1))
-    header = [t for t in lines[motion + 1:] if t.strip()][:2]
-    if len(header) < 2 or not header[0].split()[0] == "Frames:" or not header[1].strip().startswith("Frame Time:"):
+    header = [(i + 1, t) for i, t in enumerate(lines[motion + 1:], start=motion + 1) if t.strip()][:2]
+    if len(header) < 2 or header[0][1].split()[0] != "Frames:" or not header[1][1].strip().startswith("Frame Time:"):
         raise DescriptionError(located("MOTION must be followed by 'Frames: N' and 'Frame Time: T'", src, motion + 1))
-    return motion
+    (no_f, frames_line), (no_t, time_line) = header
+    try:
+        n_frames = int(frames_line.split()[1])
+        assert n_frames >= 0 and len(frames_line.split()) == 2
+    except (ValueError, IndexError, AssertionError):
+        raise DescriptionError(located(f"bad frame count {frames_line.strip()!r}", src, no_f)) from None
+    try:
+        frame_time = float(time_line.split(":", 1)[1])
+        assert np.isfinite(frame_time) and frame_time > 0 and len(time_line.split()) == 3
+    except (ValueError, IndexError, AssertionError):
+        raise DescriptionError(located(f"bad frame time {time_line.strip()!r}", src, no_t)) from None
+    return motion, n_frames, frame_time, no_t
 
 
 def _hierarchy(path: str, lines: list[str]) -> _Skeleton:
     """Joints, offsets and channels through bvhio, its errors turned into DescriptionErrors."""
-    import bvhio
+    with warnings.catch_warnings():  # PyGLM, under bvhio, warns about its own import path
+        warnings.simplefilter("ignore", PendingDeprecationWarning)
+        import bvhio
 
-    _motion_start(lines, path)
+    _motion_start(lines, path)  # bvhio loops forever on a file that ends inside the hierarchy
     try:
         root = bvhio.readAsBvh(path, loadKeyFrames=False).Root
     except SyntaxError as exc:
-        info = exc.args[1] if len(exc.args) > 1 and isinstance(exc.args[1], tuple) else None
-        line = info[1] if info and len(info) > 1 and isinstance(info[1], int) else None
-        raise DescriptionError(located(f"malformed BVH: {exc.args[0] if exc.args else exc}", path, line)) from None
+        # bvhio's own line numbers are unreliable; its debug info carries the offending text, found
+        # here when it is unique in the file.
+        info = exc.args[1] if len(exc.args) > 1 and isinstance(exc.args[1], tuple) else ()
+        text = info[3].rstrip("\r\n") if len(info) > 3 and isinstance(info[3], str) else None
+        hits = [i + 1 for i, t in enumerate(lines) if t == text]
+        line = hits[0] if len(hits) == 1 else None
+        quote = f" at {text.strip()!r}" if text and line is None else ""
+        raise DescriptionError(
+            located(f"malformed BVH: {exc.args[0] if exc.args else exc}{quote}", path, line)
+        ) from None
     except Exception as exc:  # bvhio raises whatever its parsing hits (IndexError, ValueError, ...)
         raise DescriptionError(located(f"malformed BVH ({type(exc).__name__}: {exc})", path)) from None
     joints: list[_Joint] = []
@@ -121,7 +141,8 @@ def _hierarchy(path: str, lines: list[str]) -> _Skeleton:
         seen.add(bj.Name)
         for ch in bj.Channels:
             if ch not in _POS and ch not in _ROT:
-                raise DescriptionError(located(f"joint {bj.Name!r}: unknown channel {ch!r}", path, _line_of(lines, bj.Name)))
+                msg = f"joint {bj.Name!r}: unknown channel {ch!r}"
+                raise DescriptionError(located(msg, path, _line_of(lines, bj.Name)))
         joints.append(_Joint(bj.Name, parent, np.array(bj.Offset, dtype=float), list(bj.Channels), count))
         count += len(bj.Channels)
         k = len(joints) - 1
@@ -166,7 +187,18 @@ def _chain(skel: _Skeleton, src: str, scale: float, name: str | None) -> Kinemat
     )
 
 
-def _check_scale(scale: Any) -> float:
+_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
+
+
+def _check_scale(scale: Any, unit: str | None = None) -> float:
+    if unit is not None:
+        if unit not in _UNITS:
+            raise DescriptionError(f"unit {unit!r} must be one of {', '.join(_UNITS)}")
+        if scale is not None:
+            raise DescriptionError("give either unit or scale, not both")
+        return _UNITS[unit]
+    if scale is None:
+        return 1.0
     try:
         s = float(scale)
     except (TypeError, ValueError):
@@ -176,33 +208,24 @@ def _check_scale(scale: Any) -> float:
     return s
 
 
-def from_bvh(path: str | PathLike, *, scale: float = 1.0, name: str | None = None) -> KinematicChain:
+def from_bvh(
+    path: str | PathLike, *, scale: float | None = None, unit: str | None = None, name: str | None = None
+) -> KinematicChain:
     """The skeleton of a BVH file as a chain; rest pose = the offsets times ``scale`` (metres).
 
-    ``scale`` converts file units to metres: 1.0 (default) for a file in metres, 0.01 for
-    centimetres. Axes are the file's own (often Y-up).
+    ``scale`` converts file units to metres: 1.0 (the default) for a file in metres, 0.01 for
+    centimetres; or name the file's ``unit`` ("m", "cm", "mm", "in"). Axes are the file's own
+    (often Y-up).
     """
-    scale = _check_scale(scale)
+    scale = _check_scale(scale, unit)
     src, lines = _read(path)
     return _chain(_hierarchy(src, lines), src, scale, name)
 
 
 def _motion(lines: list[str], src: str, n_channels: int) -> tuple[np.ndarray, float]:
     """(F, n_channels) motion values and the frame time in seconds, every line checked."""
-    m = _motion_start(lines, src)
-    rows = [(i + 1, t) for i, t in enumerate(lines[m + 1:], start=m + 1) if t.strip()]
-    (no_f, frames_line), (no_t, time_line) = rows[0], rows[1]
-    try:
-        n_frames = int(frames_line.split()[1])
-        assert n_frames >= 0 and len(frames_line.split()) == 2
-    except (ValueError, IndexError, AssertionError):
-        raise DescriptionError(located(f"bad frame count {frames_line.strip()!r}", src, no_f)) from None
-    try:
-        frame_time = float(time_line.split(":", 1)[1])
-        assert np.isfinite(frame_time) and frame_time > 0
-    except (ValueError, IndexError, AssertionError):
-        raise DescriptionError(located(f"bad frame time {time_line.strip()!r}", src, no_t)) from None
-    data = rows[2:]
+    _, n_frames, frame_time, no_t = _motion_start(lines, src)
+    data = [(i + 1, t) for i, t in enumerate(lines[no_t:], start=no_t) if t.strip()]
     if len(data) < n_frames:
         last = data[-1][0] if data else no_t
         raise DescriptionError(
@@ -211,7 +234,7 @@ def _motion(lines: list[str], src: str, n_channels: int) -> tuple[np.ndarray, fl
     if len(data) > n_frames:
         raise DescriptionError(located(f"more frame lines than 'Frames: {n_frames}'", src, data[n_frames][0]))
     if n_frames == 0:
-        raise DescriptionError(located("the motion has no frames", src, no_f))
+        raise DescriptionError(located("the motion has no frames", src, no_t - 1))
     for f, (no, text) in enumerate(data):
         n = len(text.split())
         if n != n_channels:
@@ -259,9 +282,11 @@ def _forward(skel: _Skeleton, values: np.ndarray, scale: float) -> tuple[np.ndar
     return pos, rot
 
 
-def load_bvh(path: str | PathLike, *, scale: float = 1.0, name: str | None = None) -> tuple[KinematicChain, np.ndarray, float]:
-    """Read a BVH motion: ``(chain, poses (F, J, 3) = scale * file units, fps)``; see :func:`from_bvh`."""
-    scale = _check_scale(scale)
+def load_bvh(
+    path: str | PathLike, *, scale: float | None = None, unit: str | None = None, name: str | None = None
+) -> tuple[KinematicChain, np.ndarray, float]:
+    """Read a BVH motion: ``(chain, poses (F, J, 3) in metres, fps)``; units as in :func:`from_bvh`."""
+    scale = _check_scale(scale, unit)
     src, lines = _read(path)
     skel = _hierarchy(src, lines)
     chain = _chain(skel, src, scale, name)
@@ -305,9 +330,11 @@ def save_bvh(
     fps: float,
     overwrite: bool = False,
     *,
-    scale: float = 1.0,
+    scale: float | None = None,
+    unit: str | None = None,
 ) -> Path:
-    """Write joint positions (F, J, 3) as a BVH motion; file values = positions / ``scale``.
+    """Write joint positions (F, J, 3) in metres as a BVH motion; file values = positions / ``scale``
+    (default 1.0: the file is in metres; or give the file's ``unit``, e.g. "cm").
 
     Every chain joint becomes a BVH joint (the root with position channels); offsets are the mean
     bone vectors' lengths along the rest pose's directions (the first frame's when the chain has no
@@ -318,7 +345,7 @@ def save_bvh(
     twist of a bone about its own axis cannot be recovered from positions and is written as zero
     swing-only rotations. Leaves get a zero End Site. Axes are written as given (chainspace: Z-up).
     """
-    scale = _check_scale(scale)
+    scale = _check_scale(scale, unit)
     X = np.asarray(poses, dtype=float)
     if X.ndim != 3 or X.shape[1:] != (chain.n_joints, 3) or len(X) == 0:
         raise TrackError(f"poses have shape {X.shape}, expected (F>0, {chain.n_joints}, 3) for {chain.name}")
@@ -366,17 +393,15 @@ def _bvh_text(chain: KinematicChain, X: np.ndarray, fps: float) -> str:
     header: list[str] = []
     channels: list[np.ndarray] = []  # per BVH joint, (F, n) values, in file order
 
-    def joint(name: str, kind: str, offset: np.ndarray, G_parent: np.ndarray, target: str | None,
+    def joint(name: str, kind: str, offset: np.ndarray, G_parent: np.ndarray, at: str, target: str | None,
               rest_dir: np.ndarray | None, depth: int, kids: list[tuple[str, str | None]]) -> None:
-        """Write one BVH joint whose rotation aims ``rest_dir`` at chain joint ``target``."""
+        """Write one BVH joint, located at chain joint ``at``, aiming ``rest_dir`` at joint ``target``."""
         pad = "  " * depth
         header.append(f"{pad}{kind} {name}")
         header.append(f"{pad}{{")
         header.append(f"{pad}  OFFSET {_fmt(offset)}")
-        origin = X[:, idx(name)] if kind == "ROOT" else None
         if target is not None:
-            here = X[:, idx(name.split('__')[0])]
-            local = np.einsum("fji,fj->fi", G_parent, X[:, idx(target)] - here)  # G_parent^T (x_c - x_p)
+            local = np.einsum("fji,fj->fi", G_parent, X[:, idx(target)] - X[:, idx(at)])  # G_parent^T (x_c - x_p)
             L = _swing(rest_dir, local)
         else:
             L = np.broadcast_to(np.eye(3), (F, 3, 3))
@@ -384,19 +409,20 @@ def _bvh_text(chain: KinematicChain, X: np.ndarray, fps: float) -> str:
         ang = Rotation.from_matrix(L).as_euler("ZXY", degrees=True)
         if kind == "ROOT":
             header.append(f"{pad}  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation")
-            channels.append(np.hstack([origin, ang]))
+            channels.append(np.hstack([X[:, idx(at)], ang]))
         else:
             header.append(f"{pad}  CHANNELS 3 Zrotation Xrotation Yrotation")
             channels.append(ang)
         if not kids:
-            header += [f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET 0 0 0", f"{pad}  }}"]
+            header.extend([f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET 0 0 0", f"{pad}  }}"])
         for child, helper_target in kids:
             emit(child, G, depth + 1, helper_target)
         header.append(f"{pad}}}")
 
     def emit(name: str, G_parent: np.ndarray, depth: int, helper_target: str | None = None) -> None:
-        if helper_target is not None:  # zero-offset helper aiming at one further child
-            joint(name, "JOINT", np.zeros(3), G_parent, helper_target, offsets[helper_target], depth,
+        if helper_target is not None:  # zero-offset helper at its parent, aiming at one further child
+            at = name[: -len(helper_target) - 2]
+            joint(name, "JOINT", np.zeros(3), G_parent, at, helper_target, offsets[helper_target], depth,
                   [(helper_target, None)])
             return
         kids = children[name]
@@ -404,7 +430,7 @@ def _bvh_text(chain: KinematicChain, X: np.ndarray, fps: float) -> str:
         plan = [(k, None) for k in kids[:1]] + [(f"{name}__{k}", k) for k in kids[1:]]
         kind = "ROOT" if name == chain.root else "JOINT"
         offset = np.zeros(3) if kind == "ROOT" else offsets[name]
-        joint(name, kind, offset, G_parent, first, offsets[first] if first else None, depth, plan)
+        joint(name, kind, offset, G_parent, name, first, offsets[first] if first else None, depth, plan)
 
     for a in chain.joints:
         for b in children[a][1:]:
@@ -413,4 +439,4 @@ def _bvh_text(chain: KinematicChain, X: np.ndarray, fps: float) -> str:
     emit(chain.root, np.broadcast_to(np.eye(3), (F, 3, 3)), 0)
     motion = np.hstack(channels)
     body = "\n".join(_fmt(row) for row in motion)
-    return "HIERARCHY\n" + "\n".join(header) + f"\nMOTION\nFrames: {F}\nFrame Time: {1.0 / fps:.9g}\n" + body + "\n"
+    return "HIERARCHY\n" + "\n".join(header) + f"\nMOTION\nFrames: {F}\nFrame Time: {1.0 / fps!r}\n" + body + "\n"

@@ -45,7 +45,7 @@ def rodrigues(omega: np.ndarray) -> np.ndarray:
     ths = np.where(small, 1.0, th)
     a = np.where(small, 1.0 - th**2 / 6.0, np.sin(ths) / ths)
     b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
-    return np.eye(3) + a * K + b * (K @ K)
+    return np.eye(3) + a * K + b * _mm(K, K)
 
 
 def complete_rotation(Q: np.ndarray) -> np.ndarray:
@@ -64,7 +64,7 @@ def fit_cameras(
     B: Any,
     weights: Any = None,
     *,
-    n_iter: int = 6,
+    n_iter: int = 5,
     fill: bool = True,
     return_rotation: bool = False,
     R0: Any = None,
@@ -122,8 +122,7 @@ def fit_cameras(
         R = complete_rotation(U @ Vt)
     else:
         R = np.broadcast_to(np.asarray(R0, float), (F, 3, 3)).copy()
-    s, R = _best_scale(G, H, R)
-    cost = _cost(G, H, c0, s, R)
+    s, R, cost = _scale_and_cost(G, H, c0, R)
     lam = np.full(F, 1e-6)
     for _ in range(n_iter):
         s, R, cost, lam = _gauss_newton_step(G, H, c0, s, R, cost, lam)
@@ -143,20 +142,22 @@ def fit_cameras(
     return (P, s, R) if return_rotation else P
 
 
+def _mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Stacked products of small matrices."""
+    return a @ b
+
+
 def _moments(G: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Moments in camera axes: Gy = R G R^T (3x3) and Hy = H R^T (2x3)."""
-    return R @ G @ np.swapaxes(R, -1, -2), H @ np.swapaxes(R, -1, -2)
+    Rt = np.swapaxes(R, -1, -2)
+    return _mm(_mm(R, G), Rt), _mm(H, Rt)
 
 
-def _cost(G, H, c0, s, R):
-    Gy, Hy = _moments(G, H, R)
-    return c0 - 2.0 * s * (Hy[:, 0, 0] + Hy[:, 1, 1]) + s**2 * (Gy[:, 0, 0] + Gy[:, 1, 1])
-
-
-def _best_scale(G, H, R):
-    Gy, Hy = _moments(G, H, R)
-    num = Hy[:, 0, 0] + Hy[:, 1, 1]
-    den = Gy[:, 0, 0] + Gy[:, 1, 1]
+def _scale_and_cost(G, H, c0, R):
+    """Best scale for rotation R and the resulting cost, from the first two rows of R only."""
+    R2 = R[:, :2]
+    num = (H * R2).sum((1, 2))  # tr(H R2^T)
+    den = ((R2 @ G) * R2).sum((1, 2))  # tr(R2 G R2^T)
     s = np.where(den > 0, num / np.where(den > 0, den, 1.0), 1.0)
     # A negative scale is a rotation by pi about the view axis: fold it into R.
     flip = s < 0
@@ -164,7 +165,7 @@ def _best_scale(G, H, R):
         R = R.copy()
         R[flip, :2] *= -1.0
         s = np.abs(s)
-    return s, R
+    return s, R, c0 - s * np.abs(num)
 
 
 # Jacobians of the predicted 2D bone (x, y) w.r.t. (ds, w1, w2, w3), for R <- exp([w]x) R, are
@@ -180,15 +181,14 @@ def _gauss_newton_step(G, H, c0, s, R, cost, lam):
     Gy, Hy = _moments(G, H, R)
     sc = s[:, None, None]
     Mx, My = _E0 + sc * _E1, _F0 + sc * _F1  # (F, 4, 3)
-    A = Mx @ Gy @ np.swapaxes(Mx, -1, -2) + My @ Gy @ np.swapaxes(My, -1, -2)
-    g = (Mx @ (Hy[:, 0] - s[:, None] * Gy[:, :, 0])[..., None]
-         + My @ (Hy[:, 1] - s[:, None] * Gy[:, :, 1])[..., None])[..., 0]
+    A = _mm(_mm(Mx, Gy), np.swapaxes(Mx, -1, -2)) + _mm(_mm(My, Gy), np.swapaxes(My, -1, -2))
+    g = ((Mx * (Hy[:, 0] - s[:, None] * Gy[:, :, 0])[:, None, :]).sum(-1)
+         + (My * (Hy[:, 1] - s[:, None] * Gy[:, :, 1])[:, None, :]).sum(-1))
     diag = np.einsum("fii->fi", A)
     A = A + (lam[:, None] * diag + 1e-12 * (diag.sum(-1, keepdims=True) + 1e-300))[..., None] * np.eye(4)
     d = np.linalg.solve(A, g[..., None])[..., 0]
-    R_new = rodrigues(d[:, 1:]) @ R
-    s_new, R_new = _best_scale(G, H, R_new)
-    c_new = _cost(G, H, c0, s_new, R_new)
+    R_new = _mm(rodrigues(d[:, 1:]), R)
+    s_new, R_new, c_new = _scale_and_cost(G, H, c0, R_new)
     better = c_new <= cost
     s = np.where(better, s_new, s)
     R = np.where(better[:, None, None], R_new, R)

@@ -40,7 +40,7 @@ from scipy.spatial.transform import Rotation
 
 from .asf import from_asf, load_amc
 from .chain import KinematicChain
-from .errors import DescriptionError, DescriptionNotFoundError, TrackError, located
+from .errors import DescriptionError, DescriptionNotFoundError, TrackError
 
 __all__ = [
     "HUMAN17_JOINTS",
@@ -308,7 +308,8 @@ def deepmimic_clip(name: str) -> tuple[KinematicChain, np.ndarray]:
         else:
             rot[link] = rot[parent]
     head_link, head_xyz = _DEEPMIMIC_HEAD
-    points = {_DEEPMIMIC_NAMES[l]: pos[l] for l in links} | {"head": pos[head_link] + rot[head_link].apply(s * head_xyz)}
+    points = {_DEEPMIMIC_NAMES[link]: pos[link] for link in links}
+    points["head"] = pos[head_link] + rot[head_link].apply(s * head_xyz)
     bones = [(_DEEPMIMIC_NAMES[tree[l][0]], _DEEPMIMIC_NAMES[l]) for l in links[1:]] + [("thorax", "head")]
     joints = [j for j in HUMAN17_JOINTS if j in points]
     poses = to_z_up(np.stack([points[j] for j in joints], axis=1))
@@ -356,18 +357,32 @@ _LAIKAGO_OFFSET = np.tile([0.0, -0.7, 0.7], 4)
 _LAIKAGO_TOE = (0.0, -0.25, -0.022)
 
 
+def _inertial_origin(urdf: Path, link: str) -> np.ndarray:
+    """The ``<inertial><origin xyz>`` of a URDF link (zero when absent)."""
+    try:
+        root = ET.fromstring(urdf.read_bytes().rstrip(b"\x00\r\n\t "))
+        el = root.find(f"./link[@name='{link}']/inertial/origin")
+        return np.zeros(3) if el is None else np.array([float(v) for v in el.get("xyz", "0 0 0").split()])
+    except (ET.ParseError, OSError, ValueError) as exc:
+        raise DescriptionError(f"{urdf}: cannot read the inertial origin of {link!r}: {exc}") from None
+
+
 def laikago_gait() -> tuple[KinematicChain, np.ndarray]:
     """The Laikago quadruped's gait clip: (chain, poses (F, 17, 3)), Z-up metres, 16 Hz.
 
     ``laikago_walk.txt`` gives per frame the base position, the base orientation and 12 leg joint
     "motor" angles for PyBullet's ``laikago/laikago.urdf`` (a Y-up model that the base orientation
-    turns into PyBullet's Z-up world); URDF angle = direction * angle + offset with the directions and
-    offsets of bullet3's ``deep_mimic/env/testLaikago.py``. The chain is :func:`chainspace.urdf.from_urdf` of that URDF plus a toe point
-    per leg (``toeFR`` ... at (0, -0.25, -0.022) m in the lower-leg frame, as in PyBullet's
-    ``laikago_toes.urdf``); positions are Pinocchio's forward kinematics of the chain's frames, moved by
-    the base pose. The quaternion is read x, y, z, w (PyBullet's order), which stands the robot upright
-    (testLaikago.py's kinematic mode differs from this only by a half turn about the vertical).
-    ``chain.metadata["q"]`` holds the (F, nq) configurations in Pinocchio order.
+    turns into PyBullet's Z-up world). URDF angle = direction * angle + offset, with the directions
+    and offsets of bullet3's ``deep_mimic/env/testLaikago.py``. The chain is
+    :func:`chainspace.urdf.from_urdf` of that URDF plus a toe point per leg (``toeFR`` ... at
+    (0, -0.25, -0.022) m in the lower-leg frame, as in PyBullet's ``laikago_toes.urdf``); positions
+    are Pinocchio's forward kinematics of the chain's frames, moved by the base pose. PyBullet's base
+    pose is that of the chassis' centre of mass (0.03 m and 0.044 m off the chassis frame), which is
+    taken into account. The base quaternion is read x, y, z, w (PyBullet's order), not w first as in
+    the humanoid clips: read so, the robot stands upright, walks towards its head and its stance toes
+    slide least (about 4 mm per frame; 8 mm with the component order of testLaikago.py's kinematic
+    mode, and read w first it stands on its head). ``chain.metadata["q"]`` holds the (F, nq)
+    configurations in Pinocchio order.
     """
     from .urdf import from_urdf, pinocchio_model, point_positions
 
@@ -387,7 +402,9 @@ def laikago_gait() -> tuple[KinematicChain, np.ndarray]:
             q[:, jm.idx_q], q[:, jm.idx_q + 1] = np.cos(angle), np.sin(angle)
         else:
             q[:, jm.idx_q] = angle
-    local = point_positions(chain, q, model=model)
+    # PyBullet places a body by its base's centre of mass: the chassis frame sits at the clip's
+    # position minus the (rotated) inertial offset.
+    local = point_positions(chain, q, model=model) - _inertial_origin(urdf, chain.root)
     base = Rotation.from_quat(frames[:, 4:8])  # x, y, z, w
     poses = np.einsum("fij,fkj->fki", base.as_matrix(), local) + frames[:, None, 1:4]
     rest = Rotation.from_quat(frames[0, 4:8]).apply(np.array(chain.rest_pose))  # stands as in frame 0

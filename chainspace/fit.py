@@ -532,79 +532,147 @@ def _align(x: np.ndarray, X: np.ndarray, w: np.ndarray, transform: str) -> _View
     return _View(np.array([s]), R[None], t[None], np.zeros(len(X), int))
 
 
+def _rotation_candidates(n_directions: int, n_azimuths: int) -> np.ndarray:
+    """Rotations spread over SO(3): the base's z axis sent to Fibonacci-sphere directions, each with
+    a few turns about it. (n, 3, 3)."""
+    from scipy.spatial.transform import Rotation
+
+    k = np.arange(n_directions) + 0.5
+    z = 1 - 2 * k / n_directions
+    phi = np.pi * (1 + 5 ** 0.5) * k
+    dirs = np.stack([np.sqrt(1 - z ** 2) * np.cos(phi), np.sqrt(1 - z ** 2) * np.sin(phi), z], -1)
+    out = []
+    for d in dirs:
+        tilt = Rotation.align_vectors([d], [[0, 0, 1]])[0]
+        for a in np.arange(n_azimuths) * 2 * np.pi / n_azimuths:
+            out.append((tilt * Rotation.from_rotvec([0, 0, a])).as_matrix())
+    return np.array(out)
+
+
 def _initial_view(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np.ndarray, transform: str,
-                  n_rotations: int = 48, n_frames: int = 8, seed: int = 0) -> _View:
+                  n_frames: int = 5, rounds: int = 3) -> _View:
     """A first view of the base frame onto X (F, J, 3), found by trying rotations.
 
     Scale from the bone lengths (constant for links joined by revolute joints), translation from the
-    root (fixed to the base); for each of ``n_rotations`` rotations (the rest pose's closed-form
-    alignment plus random ones, a fixed seed), per-frame IK from the rest pose on ``n_frames`` frames
-    spread over the sequence, all in one batched solve; the rotation with the lowest median residual
-    wins. A local method started from the closed-form alignment alone lands in a wrong pose when the
-    robot moves far from its rest pose.
+    root (fixed to the base). Candidates: the rest pose's closed-form alignment and rotations spread
+    over SO(3). For each, on ``n_frames`` frames spread over the sequence (all candidates in one
+    batched solve), a few rounds of IK from the rest pose and closed-form re-alignment; the candidate
+    with the lowest residual wins. A local method started from the rest pose's alignment alone lands in
+    a wrong pose when the robot works far from its rest pose.
     """
-    from scipy.spatial.transform import Rotation
-
     x_rest = robot.positions(robot.q_rest)[0]
     aligned = _align(x_rest, X, w, transform)
     if transform == "none":
         return aligned
-    F, J, _ = X.shape
+    F = len(X)
     seen = w > 0
+    links = [(robot.chain.joint_index(a), robot.chain.joint_index(b)) for a, b in robot.chain.links]
     L_rec = np.array([np.median(np.linalg.norm(X[:, b] - X[:, a], axis=-1)[seen[:, a] & seen[:, b]])
-                      if (seen[:, a] & seen[:, b]).any() else np.nan for a, b in _link_index(robot.chain)])
-    L_mod = np.array([np.linalg.norm(x_rest[b] - x_rest[a]) for a, b in _link_index(robot.chain)])
+                      if (seen[:, a] & seen[:, b]).any() else np.nan for a, b in links])
+    L_mod = np.array([np.linalg.norm(x_rest[b] - x_rest[a]) for a, b in links])
     ok = np.isfinite(L_rec) & (L_mod > 1e-3 * L_mod.max())
     s = float(np.median(L_rec[ok] / L_mod[ok])) if ok.any() and transform == "similarity" else aligned.S[0]
     r = robot.chain.joint_index(robot.chain.root)
-    frames = np.unique(np.linspace(0, F - 1, min(n_frames, F)).round().astype(int))
-    frames = frames[seen[frames].sum(1) >= 2] if (seen[frames].sum(1) >= 2).any() else frames
-    Rs = np.concatenate([aligned.R, Rotation.random(n_rotations, random_state=seed).as_matrix()])
-    root_X = np.array([np.median(X[seen[:, r], r], axis=0)]) if seen[:, r].any() else aligned.T
-    T = root_X - s * np.einsum("cij,j->ci", Rs, x_rest[r])
+    good = np.flatnonzero(seen.sum(1) >= 3)
+    frames = (good if len(good) else np.arange(F))[np.unique(np.linspace(0, max(len(good), 1) - 1,
+                                                                          n_frames).round().astype(int))]
+    Rs = np.concatenate([aligned.R, _rotation_candidates(24, 3)])
+    root_X = np.median(X[seen[:, r], r], axis=0) if seen[:, r].any() else aligned.T[0]
     n_c, n_f = len(Rs), len(frames)
+    S, T = np.full(n_c, s), root_X - s * Rs @ x_rest[r]
     idx = np.tile(frames, n_c)
-    cand = _View(np.full(n_c * n_f, s), np.repeat(Rs, n_f, 0), np.repeat(T, n_f, 0), np.arange(n_c * n_f))
-    q0 = np.broadcast_to(robot.q_rest, (len(idx), robot.nq))
-    _, _, rn, _, _, _ = _sequence_lm(robot, q0, X[idx], w[idx], cand, free[idx], np.zeros(7, bool), 15, 1e-6,
-                                     None)
+    q = np.array(np.broadcast_to(robot.q_rest, (len(idx), robot.nq)))
+    for k in range(rounds):
+        cand = _View(np.repeat(S, n_f), np.repeat(Rs, n_f, 0), np.repeat(T, n_f, 0), np.arange(n_c * n_f))
+        q, _, rn, pos, _, _ = _sequence_lm(robot, q, X[idx], w[idx], cand, free[idx], np.zeros(7, bool),
+                                           15, 1e-6, None)
+        if k + 1 < rounds:  # re-align each candidate's view on its own IK solutions
+            pos = pos.reshape(n_c, n_f, -1, 3)
+            for c in range(n_c):
+                v = _align(pos[c], X[frames], w[frames], transform)
+                S[c], Rs[c], T[c] = v.S[0], v.R[0], v.T[0]
     err = np.sqrt((w[idx] * rn ** 2).sum(1) / np.maximum(w[idx].sum(1), 1e-300)).reshape(n_c, n_f)
     best = int(np.argmin(np.median(err, axis=1)))
-    return _View(np.array([s]), Rs[best][None], T[best][None], np.zeros(F, int))
+    return _View(S[best:best + 1], Rs[best][None], T[best][None], np.zeros(F, int))
 
 
 def _link_index(chain: KinematicChain) -> list[tuple[int, int]]:
     return [(chain.joint_index(a), chain.joint_index(b)) for a, b in chain.links]
 
 
+def _branch_near_rest(robot: RobotKinematics, Y: np.ndarray, w: np.ndarray, view: _View, free: np.ndarray,
+                      q_now: np.ndarray, n_seeds: int = 48, seed: int = 0) -> np.ndarray:
+    """Of the joint angles that fit one frame's points Y (J, 3) equally well, the nearest the rest pose.
+
+    Tracked points on joint axes leave discrete ambiguities (a wrist turned half a turn with the next
+    joint mirrored puts every point in the same place); the data cannot choose, so the branch of the
+    rest pose is taken, found by IK from many seeds.
+    """
+    rng = np.random.default_rng(seed)
+    lo = np.where(robot.limited, np.maximum(robot.lower, -np.pi), -np.pi)
+    hi = np.where(robot.limited, np.minimum(robot.upper, np.pi), np.pi)
+    seeds = rng.uniform(lo, hi, (n_seeds, robot.nq)) if robot.euclidean else \
+        np.broadcast_to(robot.q_rest, (n_seeds, robot.nq))
+    seeds = np.concatenate([robot.q_rest[None], q_now[None], robot.clip(seeds)])
+    seeds[:, ~free] = q_now[~free] if robot.euclidean else seeds[:, ~free]
+    n = len(seeds)
+    v = _View(view.S, view.R, view.T, np.zeros(n, int))
+    q, _, rn, _, _, _ = _sequence_lm(robot, seeds, np.broadcast_to(Y, (n,) + Y.shape),
+                                     np.broadcast_to(w, (n,) + w.shape), v, np.broadcast_to(free, (n, robot.nv)),
+                                     np.zeros(7, bool), 40, 1e-10, None)
+    err = np.sqrt((w * rn ** 2).sum(1) / max(w.sum(), 1e-300))
+    tied = err <= err.min() * 1.5 + 1e-9 * max(view.S[0], 1e-300)
+    d = np.where(robot.revolute, (q - robot.q_rest + np.pi) % (2 * np.pi) - np.pi, q - robot.q_rest)
+    d = np.abs(d[:, robot.v_of_q >= 0][:, free[robot.v_of_q[robot.v_of_q >= 0]]]).sum(1)
+    k = np.flatnonzero(tied)[np.argmin(d[tied])]
+    return robot.wrap_near(q[k:k + 1], robot.q_rest)[0]
+
+
+def _sequential_ik(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, view: _View, free: np.ndarray,
+                   q_first: np.ndarray) -> np.ndarray:
+    """IK frame by frame, each frame warm-started from the previous one: a continuous path."""
+    q = np.empty((len(X), robot.nq))
+    prev = q_first
+    for f in range(len(X)):
+        q_f, *_ = _sequence_lm(robot, prev[None], X[f:f + 1], w[f:f + 1], view.take(np.array([f])),
+                               free[f:f + 1], np.zeros(7, bool), 30, 1e-8, None)
+        prev = q[f] = q_f[0]
+    return q
+
+
 def _fit_3d(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np.ndarray, transform: str,
             max_iter: int, tol: float, rounds: int = 12) -> tuple[np.ndarray, _View, int]:
     """Joint angles and one view onto the 3D points X (F, J, 3).
 
-    Start: the rest pose aligned on the whole sequence, then IK frame by frame, each frame warm-started
-    from the previous one (a continuous path). Then alternate the closed-form alignment with per-frame
-    IK (each frame with its own damping: robust far from the solution), and polish with the coupled
-    Levenberg-Marquardt of joint angles and view together (fast near the solution).
+    Start: a view found by trying rotations (:func:`_initial_view`), then IK frame by frame from the
+    rest pose's branch, each frame warm-started from the previous one. Then alternate the closed-form
+    alignment with per-frame IK (each frame with its own damping: robust far from the solution); the
+    coupled Levenberg-Marquardt of joint angles and view together polishes afterwards.
     """
     fixed_view = np.zeros(7, bool)
     view = _initial_view(robot, X, w, free, transform)
-    q = np.empty((len(X), robot.nq))
-    prev = robot.q_rest
-    for f in range(len(X)):
-        q_f, *_ = _sequence_lm(robot, prev[None], X[f:f + 1], w[f:f + 1], view.take(np.array([f])),
-                               free[f:f + 1], fixed_view, 30, 1e-8, None)
-        prev = q[f] = q_f[0]
-    q = robot.wrap_near(q, robot.q_rest)
-    n_iter, prev_rms = 0, np.inf
-    for _ in range(rounds if transform != "none" else 1):
-        view = _align(robot.positions(q), X, w, transform)
-        q, view, rn, _, _, it = _sequence_lm(robot, q, X, w, view, free, fixed_view, 30, 1e-8, None)
-        n_iter += it
-        rms = float(np.sqrt((w * rn ** 2).sum() / w.sum()))
-        if rms > (1 - 1e-3) * prev_rms:
-            break
-        prev_rms = rms
+    n_iter = 0
+    for attempt in range(2):
+        q_first = _branch_near_rest(robot, X[0], w[0], view.take(np.array([0])), free[0],
+                                    robot.q_rest if attempt == 0 else q[0])
+        if attempt == 1 and np.abs(_wrapped(robot, q_first - q[0])).max() < 1e-3:
+            break  # the branch did not change
+        q = _sequential_ik(robot, X, w, view, free, q_first)
+        prev_rms = np.inf
+        for _ in range(rounds if transform != "none" else 1):
+            view = _align(robot.positions(q), X, w, transform)
+            q, view, rn, _, _, it = _sequence_lm(robot, q, X, w, view, free, fixed_view, 30, 1e-8, None)
+            n_iter += it
+            rms = float(np.sqrt((w * rn ** 2).sum() / w.sum()))
+            if rms > (1 - 1e-3) * prev_rms:
+                break
+            prev_rms = rms
     return q, view, n_iter
+
+
+def _wrapped(robot: RobotKinematics, dq: np.ndarray) -> np.ndarray:
+    """Differences of configurations with revolute joints wrapped into [-pi, pi)."""
+    return np.where(robot.revolute, (dq + np.pi) % (2 * np.pi) - np.pi, dq)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -650,6 +718,23 @@ def _gauge_directions(x: np.ndarray, jac: np.ndarray, w: np.ndarray, P: np.ndarr
 def _names_of_v(robot: RobotKinematics) -> list[str]:
     m = robot.model
     return [m.names[j] for j in range(1, m.njoints) for _ in range(m.joints[j].nv)]
+
+
+def _prefer_rest(robot: RobotKinematics, cands: list[dict], key: str, blind: np.ndarray) -> list[dict]:
+    """Candidates sorted by their error ``key``; among those the data cannot tell apart (error within
+    1.5 times the best, as a mirror image often fits as well as the truth), the nearest the rest pose
+    (mean absolute joint offset over the fitted, observable joints) comes first."""
+    cands = sorted(cands, key=lambda c: c[key])
+    best = cands[0][key]
+    tied = [c for c in cands if c[key] <= 1.5 * best + 1e-12]
+
+    def distance(c):
+        seen = ~(blind | c["gauge"])[robot.v_of_q[robot.v_of_q >= 0]]
+        d = _wrapped(robot, c["q"] - robot.q_rest)[:, robot.v_of_q >= 0][:, seen]
+        return float(np.abs(d).mean()) if d.size else 0.0
+
+    tied.sort(key=distance)
+    return tied + [c for c in cands if c not in tied]
 
 
 def _hold(robot: RobotKinematics, q: np.ndarray, blind: np.ndarray, gauge: np.ndarray,
@@ -762,6 +847,7 @@ def fit_joint_angles(
     tol: float = 1e-10,
     loss_scale_px: float | None = None,
     mirror: bool = True,
+    view_from: str | None = "above",
 ) -> JointFit:
     """Fit the robot's joint angles to a reconstruction (and its 2D tracks).
 
@@ -792,6 +878,12 @@ def fit_joint_angles(
         of the 3D fit's start; 0: plain least squares.
     mirror
         Also try the depth-mirrored poses (weak perspective cannot tell them apart) and keep the better.
+    view_from
+        ``"above"`` (default: the camera looks down on the robot's base plane, or level), ``"below"`` or
+        None. Under weak perspective a motion and its mirror image project alike; for a robot built
+        mirror-symmetric (most industrial arms) both are valid motions and fit equally well. The camera
+        side then decides (image y axis pointing down, as pixel rows do); None: the motion nearer the
+        rest pose.
 
     Returns
     -------
@@ -799,6 +891,8 @@ def fit_joint_angles(
         ``observable``/``relative`` follow the rule in the module docstring; ``message`` names the
         joints that are not (fully) observable and why.
     """
+    if view_from not in ("above", "below", None):
+        raise DescriptionError(f"view_from must be 'above', 'below' or None, not {view_from!r}")
     if camera not in ("static", "per-frame"):
         raise DescriptionError(f"camera must be 'static' or 'per-frame', not {camera!r}")
     if transform not in ("similarity", "rigid", "none"):
@@ -821,7 +915,7 @@ def fit_joint_angles(
     _, free_blind = _hold(robot, np.broadcast_to(robot.q_rest, (F, robot.nq)), blind, blind & False, False)
     free_sim = np.array([transform != "none"] * 3 + [transform == "similarity"] + [transform != "none"] * 3)
     candidates, n_iter = [], 0
-    for sign in ((1.0, -1.0) if mirror and transform != "none" else (1.0,)):
+    for sign in ((1.0, -1.0) if mirror and transform == "similarity" else (1.0,)):
         X = sign * Xz
         q, view, n_iter_a = _fit_3d(robot, X, w3, free_blind, transform, max_iter, tol)
         gauge, free = np.zeros(robot.nv, bool), free_blind
@@ -834,7 +928,8 @@ def fit_joint_angles(
         n_iter += it + n_iter_a
         candidates.append(dict(sign=sign, q=q, view=view, rms=float(np.sqrt((w3 * rn ** 2).sum() / w3.sum())),
                                conv=conv, gauge=gauge, pos=pos))
-    candidates.sort(key=lambda c: c["rms"])
+    candidates = _prefer_rest(robot, candidates, "rms", blind)
+    mirror_tied = len(candidates) > 1 and candidates[1]["rms"] <= 1.5 * candidates[0]["rms"] + 1e-12
     best = candidates[0]
     gauge = best["gauge"]
     timings["fit_3d"] = time.perf_counter() - t0
@@ -848,7 +943,7 @@ def fit_joint_angles(
         if (w2 > 0).sum() < 6:
             raise TrackError(f"the tracks have {int((w2 > 0).sum())} usable points; the camera needs at least 6")
         results = []
-        for c in [c for c in candidates if c["rms"] <= 3 * best["rms"] + 1e-12]:
+        for c in [c for c in candidates if c["rms"] <= 3 * best["rms"] + 1e-12]:  # mirrors unless told apart
             P0, t20 = _affine_camera(c["pos"], tracks, w2, per_frame)
             pos, jac = robot.jacobians(c["q"])
             g2 = (_gauge_directions(pos, jac, w2, P0, per_frame) | c["gauge"]) & ~blind
@@ -861,8 +956,16 @@ def fit_joint_angles(
                      (float(loss_scale_px) if loss_scale_px > 0 else None))
             out = _sequence_lm(robot, q, tracks, w2, view, free, np.ones(6, bool), max_iter, tol, delta)
             n_iter += out[-1]
-            results.append((float((w2 * out[2] ** 2).sum()), out, c, g2))
-        _, (q, view, rn, pos_base, conv2, _), best, gauge = min(results, key=lambda r: r[0])
+            # camera looking down on the base plane: its forward axis (third row, image y down) has z < 0
+            results.append(dict(cost=float(np.sqrt((w2 * out[2] ** 2).sum() / w2.sum())), out=out, c=c, g2=g2,
+                                q=out[0], gauge=g2, down=-float(np.mean(out[1].R[:, 2, 2]))))
+        results = _prefer_rest(robot, results, "cost", blind)
+        mirror_tied = len(results) > 1 and results[1]["cost"] <= 1.5 * results[0]["cost"] + 1e-12
+        if mirror_tied and view_from in ("above", "below"):
+            sgn = 1 if view_from == "above" else -1
+            results[:2] = sorted(results[:2], key=lambda r: -sgn * r["down"])
+        r = results[0]
+        (q, view, rn, pos_base, conv2, _), best, gauge = r["out"], r["c"], r["g2"]
         converged = best["conv"] & conv2
         residual_px = _rms_per_frame(rn, w2)
         cams = view.matrices()
@@ -890,8 +993,10 @@ def fit_joint_angles(
             relative[qi] = bool(gauge[v] and not blind[v] and not per_frame)
     notes = _notes(robot, blind, gauge & ~blind, per_frame)
     msg = "; ".join(notes) if notes else "all joints observable"
-    if best["sign"] < 0:
-        msg += "; the depth-mirrored poses fitted better"
+    if mirror_tied:
+        msg += ("; the motion and its mirror image fit the data equally well (weak perspective): "
+                + (f"the one seen from {view_from} the base plane is reported" if refine and tracks is not None
+                   and view_from else "the one nearer the rest pose is reported"))
     converged = np.broadcast_to(np.asarray(converged, bool), (F,)).copy()
     if not converged.all():
         msg = "the solver stopped before it converged; " + msg

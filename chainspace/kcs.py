@@ -108,23 +108,31 @@ def _svt(A: np.ndarray, tau: float) -> tuple[np.ndarray, float]:
     return out, float(shrunk.sum())
 
 
-def _solve_A(A, P, S, R, wb, n_steps, tau_start, tau_end):
-    """FISTA on tau ||A||_* + 1/2 sum_k || (P_k A_k S - R_k) sqrt(w_k) ||^2 with tau going tau_start -> tau_end."""
-    F = A.shape[0]
-    # Lipschitz constant of the gradient: max_k s_k^2 * lambda_max(S diag(w_k) S^T), bounded by the trace.
+def _PA(P: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """Per-frame products P_k A_k, (F, 2, 3) x (F, 3, m) -> (F, 2, m), by broadcasting (numpy's
+    stacked matmul is slow for tiny matrices)."""
+    return P[:, :, 0, None] * A[:, None, 0] + P[:, :, 1, None] * A[:, None, 1] + P[:, :, 2, None] * A[:, None, 2]
+
+
+def _PtG(P: np.ndarray, G: np.ndarray) -> np.ndarray:
+    """Per-frame products P_k^T G_k, (F, 2, 3) x (F, 2, m) -> (F, 3, m)."""
+    return P[:, 0, :, None] * G[:, None, 0] + P[:, 1, :, None] * G[:, None, 1]
+
+
+def _solve_A(A, P, S, R, wb, taus):
+    """FISTA on tau ||A||_* + 1/2 sum_k || (P_k A_k S - R_k) sqrt(w_k) ||^2, one step per tau in taus."""
+    F, m = A.shape[0], A.shape[-1]
+    # Lipschitz constant of the gradient: max_k s_k^2 * lambda_max(S diag(w_k) S^T) <= max_k s_k^2 * ||S||^2 max w
     s2 = (P**2).sum(-1).max(-1)
-    SwS = np.einsum("il,fl,jl->fij", S, wb, S)
-    lip = float((s2 * np.linalg.eigvalsh(SwS)[:, -1]).max())
+    lip = float((s2 * wb.max(-1)).max() * np.linalg.norm(S, 2) ** 2)
     if lip <= 0:
         return A
     step = 1.0 / lip
-    taus = np.geomspace(tau_start, tau_end, n_steps) if n_steps > 1 else [tau_end]
     Y, A_prev, t = A.copy(), A.copy(), 1.0
-    Pt = np.swapaxes(P, -1, -2)
+    St = np.ascontiguousarray(S.T)
     for tau in taus:
-        PY = P @ Y  # (F, 2, 3K)
-        res = (PY.reshape(2 * F, -1) @ S).reshape(F, 2, -1) - R  # (F, 2, L)
-        grad = Pt @ ((res * wb[:, None, :]).reshape(2 * F, -1) @ S.T).reshape(F, 2, -1)
+        res = (_PA(P, Y).reshape(2 * F, m) @ S).reshape(F, 2, -1) - R  # (F, 2, L)
+        grad = _PtG(P, ((res * wb[:, None, :]).reshape(2 * F, -1) @ St).reshape(F, 2, m))
         A_new, _ = _svt(Y - step * grad, step * tau)
         t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
         Y = A_new + ((t - 1.0) / t_new) * (A_new - A_prev)
@@ -141,7 +149,7 @@ def kcs_factorize(
     n_basis: int | None = None,
     max_iter: int = 10,
     tol: float = 1e-3,
-    svt_steps: int = 40,
+    svt_steps: int = 20,
     tau_range: tuple[float, float] = (1e-1, 1e-4),
     truth: np.ndarray | None = None,
     error_fn: Any = None,
@@ -156,6 +164,7 @@ def kcs_factorize(
     """
     F, J = tracks.shape[:2]
     C = chain.C
+    weights = np.where(np.isfinite(tracks).all(-1), weights, 0.0)
     B0 = (C.T @ X0).T  # (3, L)
     Wb, wb = bone_observations(chain, tracks, weights)
     Wb_cols = np.swapaxes(Wb, 1, 2)  # (F, 2, L)
@@ -166,11 +175,20 @@ def kcs_factorize(
     A = np.zeros((F, 3, Q.shape[0]))
     hist: dict[str, list[float]] = {"reprojection": []}
 
+    nb = chain.n_bones
+    Dm = np.ascontiguousarray(chain.D)
+    Wt = np.swapaxes(np.where(np.isfinite(tracks), tracks, 0.0), 1, 2)  # (F, 2, J)
+    wsum = np.maximum(weights.sum(-1), 1e-300)
+
     def record(A, P):
-        B = A @ S + B0  # (F, 3, L)
-        X = chain.poses_from_bones(np.swapaxes(B, 1, 2))
-        t = fit_translations(tracks, weights, X, P)
-        hist["reprojection"].append(reprojection_rms(tracks, weights, X, P, t))
+        # Reprojection RMS with the best translation per frame, all in (F, 2, J) layout (cheap).
+        B = (A.reshape(-1, A.shape[-1]) @ S).reshape(F, 3, -1) + B0  # (F, 3, L)
+        Xt = (B[:, :, :nb].reshape(-1, nb) @ Dm).reshape(F, 3, -1)  # (F, 3, J)
+        d = Wt - _PA(P, Xt)
+        t = (d * weights[:, None, :]).sum(-1) / wsum[:, None]
+        r2 = (weights[:, None, :] * (d - t[..., None]) ** 2).sum()
+        hist["reprojection"].append(float(np.sqrt(r2 / max(weights.sum(), 1e-300))))
+        X = np.swapaxes(Xt, 1, 2)
         if truth is not None and error_fn is not None:
             hist.setdefault("error_3d", []).append(float(error_fn(X, truth)))
         return X, t
@@ -178,17 +196,19 @@ def kcs_factorize(
     X, t = record(A, P)
     # The threshold scale: spectral norm of the gradient at A = 0 (where every singular value would
     # be thresholded away if tau were larger).
-    R = Wb_cols - P @ B0
-    g0 = np.swapaxes(P, -1, -2) @ ((R * wb[:, None, :]).reshape(2 * F, -1) @ S.T).reshape(F, 2, -1)
+    R = Wb_cols - _PA(P, np.broadcast_to(B0, (F,) + B0.shape))
+    g0 = _PtG(P, ((R * wb[:, None, :]).reshape(2 * F, -1) @ S.T).reshape(F, 2, -1))
     g0n = float(np.sqrt(max(np.linalg.eigvalsh(g0.reshape(-1, g0.shape[-1]).T @ g0.reshape(-1, g0.shape[-1]))[-1], 0)))
     tau_hi, tau_lo = tau_range[0] * g0n, tau_range[1] * g0n
-    taus = np.geomspace(tau_hi, tau_lo, max_iter + 1)
     converged, it = False, 0
     for it in range(1, max_iter + 1):
-        R = Wb_cols - P @ B0
-        A = _solve_A(A, P, S, R, wb, svt_steps, taus[it - 1], taus[it])
-        B = A @ S + B0
-        P, s, Rot = fit_cameras(Wb, np.swapaxes(B, 1, 2), wb, return_rotation=True, R0=Rot, n_iter=3)
+        R = Wb_cols - _PA(P, np.broadcast_to(B0, (F,) + B0.shape))
+        # Continuation: the first pass lowers tau from tau_hi to tau_lo; later passes, warm-started
+        # from the previous A, stay at tau_lo.
+        taus = np.geomspace(tau_hi, tau_lo, svt_steps) if it == 1 else np.full(max(svt_steps // 4, 1), tau_lo)
+        A = _solve_A(A, P, S, R, wb, taus)
+        B = (A.reshape(-1, A.shape[-1]) @ S).reshape(F, 3, -1) + B0
+        P, s, Rot = fit_cameras(Wb, np.swapaxes(B, 1, 2), wb, return_rotation=True, R0=Rot, n_iter=2)
         X, t = record(A, P)
         r0, r1 = hist["reprojection"][-2], hist["reprojection"][-1]
         if abs(r0 - r1) <= tol * max(r0, 1e-12) and it >= 2:

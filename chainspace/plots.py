@@ -52,14 +52,15 @@ def plot_convergence(rec: Any, path: str | os.PathLike, *, overwrite: bool = Fal
     """
     history: Mapping[str, Mapping[str, Sequence[float]]] = getattr(rec, "history", None) or {}
     check_writable([path], overwrite)
-    series = {s: h for s, h in history.items() if h and any(len(v) for v in h.values())}
+    keys = ("reprojection", "error_3d")
+    series = {s: h for s, h in history.items() if h and any(len(h.get(k, [])) for k in keys)}
     if not series:
         raise TrackError("this reconstruction has no convergence history to plot")
     has_3d = any(len(h.get("error_3d", [])) for h in series.values())
     fig, axes = _figure(2 if has_3d else 1, 1, figsize=(6.4, 6.0 if has_3d else 3.6))
     offset = 0
     for stage, h in series.items():
-        n = max(len(v) for v in h.values())
+        n = max(len(h.get(k, [])) for k in keys)
         for ax, key, scale in ((axes[0, 0], "reprojection", 1.0), (axes[-1, 0], "error_3d", 1000.0)):
             v = np.asarray(h.get(key, []), dtype=float)
             if len(v) and (key == "reprojection" or has_3d):

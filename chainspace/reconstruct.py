@@ -268,7 +268,7 @@ def reconstruct(
         (F, J, 3) true poses, only for diagnostics: adds "error_3d" to the history.
     max_iter, tol
         Iteration limit and relative tolerance of each stage (defaults: KCS 10 / 1e-3,
-        refinement 50 / 1e-4).
+        refinement 30 / 2e-3).
     seed
         Accepted for reproducibility; every method is deterministic.
     progress
@@ -314,7 +314,7 @@ def reconstruct(
     if method == "default":
         say("refinement")
         t1 = time.perf_counter()
-        poses, res, hist = _refine(W, c, chain, X0, kcs, T, max_iter or 50, tol or 1e-4, refine_options or {})
+        poses, res, hist = _refine(W, c, chain, X0, kcs, T, max_iter or 30, tol or 2e-3, refine_options or {})
         timings["refine"] = time.perf_counter() - t1
         history["refine"] = hist
         t = fit_translations(W, c, poses, P)
@@ -330,3 +330,15 @@ def _result(W, c, given, chain, method, poses, P, t, converged, n_iter, message,
     lengths = np.nanmean(chain.bone_lengths(poses), axis=0)
     return Reconstruction(poses, P, t, lengths, W, c if given else None, chain, method, bool(converged),
                           int(n_iter), message, history, timings)
+
+
+class _CallableModule(type(sys)):
+    """``chainspace.reconstruct`` is both this module and its main function: importing the module
+    (``from chainspace.reconstruct import ...``) makes Python bind the package attribute
+    ``chainspace.reconstruct`` to the module, so the module forwards calls to the function."""
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Reconstruction:
+        return reconstruct(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule

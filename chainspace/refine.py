@@ -221,7 +221,7 @@ def refine_bones(
     x, l = starts[start]
     x = x.copy()
     e = _energy(pb, x, l)
-    hist: dict[str, list[float]] = {"objective": [float(e.sum())]}
+    hist: dict[str, list[float]] = {"objective": [float(e.sum())], "delta": [pb.delta]}
     if monitor is not None:
         monitor(x)
     converged, it = False, 0

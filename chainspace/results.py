@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import dataclasses
 import json
 import math
 import os
@@ -159,6 +160,8 @@ def _chain_arrays(chain: Any) -> dict[str, np.ndarray]:
         arrays["rigid_links"] = np.array(chain.rigid_links, dtype=str).reshape(-1, 2)
     if chain.rest_pose is not None:
         arrays["rest_pose"] = np.asarray(chain.rest_pose)
+    if chain.metadata:  # e.g. a URDF chain's q_rest and extra frames (the tool tip)
+        arrays["chain_metadata_json"] = np.array(json.dumps(to_jsonable(chain.metadata), allow_nan=False))
     return arrays
 
 
@@ -237,33 +240,30 @@ def _fit_summary(fit: Any) -> dict[str, Any]:
     }
 
 
-def _reconstruction_arrays(rec: Any) -> dict[str, np.ndarray]:
-    arrays = {
-        "kind": np.array("reconstruction"),
-        "poses": np.asarray(rec.poses, dtype=float),
-        "cameras": np.asarray(rec.cameras, dtype=float),
-        "translations": np.asarray(rec.translations, dtype=float),
-        "bone_lengths": np.asarray(rec.bone_lengths, dtype=float),
-    }
-    for name in ("tracks", "confidence"):
-        value = getattr(rec, name, None)
-        if value is not None:
-            arrays[name] = np.asarray(value, dtype=float)
-    arrays.update(_chain_arrays(getattr(rec, "chain", None)))
-    return arrays
+_ARRAY_FIELDS = {
+    "reconstruction": ("poses", "cameras", "translations", "bone_lengths", "tracks", "confidence", "method",
+                       "converged", "n_iter", "message"),
+    "joint_fit": ("q", "joint_names", "observable", "positions", "residual_3d", "residual_px", "converged",
+                  "scale", "rotation", "translation", "cameras", "translations_2d", "urdf_path", "message",
+                  "n_iter"),
+}
+_JSON_FIELDS = ("history", "timings")  # dicts: kept in the summary JSON inside the NPZ
 
 
-def _fit_arrays(fit: Any) -> dict[str, np.ndarray]:
-    arrays = {"kind": np.array("joint_fit"), "q": np.asarray(fit.q, dtype=float),
-              "joint_names": np.array(list(fit.joint_names), dtype=str)}
-    for name in ("observable", "positions", "residual_3d", "residual_px", "converged", "scale", "rotation",
-                 "translation", "cameras", "translations_2d"):
-        value = getattr(fit, name, None)
-        if value is not None:
-            arrays[name] = np.asarray(value)
-    if getattr(fit, "urdf_path", None) is not None:
-        arrays["urdf_path"] = np.array(str(fit.urdf_path))
-    arrays.update(_chain_arrays(getattr(fit, "chain", None)))
+def _arrays(obj: Any, kind: str) -> dict[str, np.ndarray]:
+    """Every field of ``obj`` as an array (dataclass fields when it is one), the chain as names."""
+    names = ([f.name for f in dataclasses.fields(obj)] if dataclasses.is_dataclass(obj)
+             else list(_ARRAY_FIELDS[kind]))
+    arrays = {"kind": np.array(kind)}
+    for name in names:
+        value = getattr(obj, name, None)
+        if value is None or name == "chain" or name in _JSON_FIELDS:
+            continue
+        arr = np.asarray(str(value) if isinstance(value, os.PathLike) else value)
+        if arr.dtype.kind == "O":
+            continue  # nothing numeric or textual to keep
+        arrays[name] = arr
+    arrays.update(_chain_arrays(getattr(obj, "chain", None)))
     return arrays
 
 
@@ -307,7 +307,7 @@ def save_results(obj: Any, out: str | os.PathLike, *, overwrite: bool = False,
             f.write(obj.table().rstrip() + "\n")
         return list(paths.values())
 
-    arrays = _reconstruction_arrays(obj) if kind == "reconstruction" else _fit_arrays(obj)
+    arrays = _arrays(obj, kind)
     summary = _reconstruction_summary(obj) if kind == "reconstruction" else _fit_summary(obj)
     for fmt, path in paths.items():
         if fmt == "npz":
@@ -335,17 +335,48 @@ def _chain_from_arrays(data: dict[str, np.ndarray]) -> Any:
     return KinematicChain(
         data["joints"].tolist(), [tuple(p) for p in data["bones"].tolist()], data.get("rest_pose"), rigid,
         name=str(data["chain_name"]) if "chain_name" in data else None,
+        metadata=json.loads(str(data["chain_metadata_json"])) if "chain_metadata_json" in data else None,
     )
 
 
-def load_results(path: str | os.PathLike) -> SimpleNamespace:
-    """Read an NPZ written by :func:`save_results` back.
+def _scalar(value: np.ndarray) -> Any:
+    return value.item() if value.ndim == 0 else value
 
-    Returns a namespace with the same attribute names as the saved object (``poses``, ``cameras``,
-    ``translations``, ... for a reconstruction; ``q``, ``joint_names``, ... for a joint fit), plus
-    ``kind`` (``"reconstruction"`` or ``"joint_fit"``), ``chain`` (a KinematicChain rebuilt from the
-    saved joint and bone names) and the summary's fields (``converged``, ``n_iter``, ``message``,
-    ``history``, ``timings``). Plots and the viewer accept it in place of the original object.
+
+def _rebuild(kind: str, data: dict[str, np.ndarray], summary: dict, chain: Any) -> Any:
+    """The original dataclass (Reconstruction or JointFit) from saved fields, or None if unavailable."""
+    try:
+        if kind == "reconstruction":
+            from .reconstruct import Reconstruction as cls
+        else:
+            from .fit import JointFit as cls
+    except ImportError:
+        return None
+    kwargs: dict[str, Any] = {}
+    for f in dataclasses.fields(cls):
+        if f.name == "chain":
+            kwargs["chain"] = chain
+        elif f.name in _JSON_FIELDS:
+            kwargs[f.name] = summary.get(f.name if f.name == "history" else "timings_s", {}) or {}
+        elif f.name in data:
+            kwargs[f.name] = _scalar(data[f.name])
+        elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            kwargs[f.name] = None
+    if "joint_names" in kwargs:
+        kwargs["joint_names"] = list(np.atleast_1d(kwargs["joint_names"]).tolist())
+    try:
+        return cls(**kwargs)
+    except (TypeError, ValueError):
+        return None
+
+
+def load_results(path: str | os.PathLike) -> Any:
+    """Read an NPZ written by :func:`save_results` back (a folder holding one NPZ works too).
+
+    Returns the saved object, a :class:`~chainspace.reconstruct.Reconstruction` or a
+    :class:`~chainspace.fit.JointFit`, with its chain rebuilt from the saved joint and bone names
+    and metadata (a URDF chain's ``q_rest`` and extra frames, as JSON: lists for arrays and tuples).
+    Should the class be unavailable, a namespace with the same attributes plus ``kind`` is returned.
     """
     path = Path(path)
     if path.is_dir():
@@ -364,27 +395,17 @@ def load_results(path: str | os.PathLike) -> SimpleNamespace:
         raise TrackError(f"{path}: not a chainspace result NPZ (no 'kind' entry)")
     summary = json.loads(str(data.pop("summary_json"))) if "summary_json" in data else {}
     kind = str(data.pop("kind"))
-    ns = SimpleNamespace(kind=kind, summary=summary, source=path)
-    ns.chain = _chain_from_arrays(data)
-    for k in ("joints", "bones", "rigid_links", "rest_pose", "chain_name"):
+    chain = _chain_from_arrays(data)
+    for k in ("joints", "bones", "rigid_links", "rest_pose", "chain_name", "chain_metadata_json"):
         data.pop(k, None)
-    for k, v in data.items():
-        setattr(ns, k, str(v) if v.dtype.kind == "U" and v.ndim == 0 else v)
-    if kind == "reconstruction":
-        ns.confidence = data.get("confidence")
-        ns.tracks = data.get("tracks")
-        ns.method = summary.get("method")
-        ns.converged = bool(summary.get("converged", False))
-        ns.n_iter = summary.get("n_iter", 0)
-        ns.message = summary.get("message", "")
-        ns.history = summary.get("history", {}) or {}
-        ns.timings = summary.get("timings_s", {}) or {}
-    else:
-        ns.joint_names = data["joint_names"].tolist()
-        ns.message = summary.get("message", "")
-        ns.n_iter = summary.get("n_iter")
-        for k in ("residual_px", "cameras", "translations_2d", "urdf_path"):
-            if not hasattr(ns, k):
-                setattr(ns, k, None)
+    obj = _rebuild(kind, data, summary, chain)
+    if obj is not None:
+        return obj
+    ns = SimpleNamespace(kind=kind, chain=chain, summary=summary, history=summary.get("history", {}) or {},
+                         timings=summary.get("timings_s", {}) or {})
+    for k in _ARRAY_FIELDS[kind]:
+        setattr(ns, k, _scalar(data[k]) if k in data else None)
+    if kind == "joint_fit":
+        ns.joint_names = list(np.atleast_1d(ns.joint_names).tolist())
     return ns
 

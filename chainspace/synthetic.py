@@ -15,7 +15,7 @@ import numpy as np
 
 from .errors import TrackError
 
-__all__ = ["orbit_cameras", "observe", "scale_for_span", "look_rotation"]
+__all__ = ["orbit_cameras", "observe", "scale_for_span", "look_rotation", "swing_motion"]
 
 _UP = {"z": (np.array([0.0, 0, 1]), np.array([1.0, 0, 0]), np.array([0.0, 1, 0])),
        "y": (np.array([0.0, 1, 0]), np.array([0.0, 0, 1]), np.array([1.0, 0, 0]))}
@@ -110,3 +110,30 @@ def observe(
     if noise_px > 0:
         W = W + np.random.default_rng(seed).normal(scale=float(noise_px), size=W.shape)
     return W
+
+
+def swing_motion(chain: Any, n_frames: int = 120, *, amplitude_deg: float = 30.0, fps: float = 30.0,
+                 rest_pose: Any = None, seed: Any = None) -> np.ndarray:
+    """(F, J, 3) smooth articulated motion of ``chain`` with constant bone lengths.
+
+    Each tree bone of the rest pose swings about its own random axis by up to ``amplitude_deg``
+    with a random frequency between 0.3 and 1.5 Hz: a stand-in for real motion in tests.
+    """
+    from scipy.spatial.transform import Rotation
+
+    X0 = np.asarray(chain.rest_pose if rest_pose is None else rest_pose, dtype=float)
+    if X0 is None or X0.shape != (chain.n_joints, 3):
+        raise TrackError("swing_motion needs a rest pose (J, 3)")
+    rng = np.random.default_rng(seed)
+    nb = chain.n_bones
+    axes = rng.normal(size=(nb, 3))
+    axes /= np.linalg.norm(axes, axis=-1, keepdims=True)
+    amp = np.deg2rad(amplitude_deg) * rng.uniform(0.3, 1.0, nb)
+    freq = rng.uniform(0.3, 1.5, nb)
+    phase = rng.uniform(0, 2 * np.pi, nb)
+    t = np.arange(int(n_frames)) / fps
+    ang = amp * np.sin(2 * np.pi * freq * t[:, None] + phase)  # (F, nb)
+    rot = Rotation.from_rotvec((ang[..., None] * axes).reshape(-1, 3)).as_matrix().reshape(len(t), nb, 3, 3)
+    B0 = chain.bone_vectors(X0)[:nb]
+    B = np.einsum("fbij,bj->fbi", rot, B0)
+    return chain.poses_from_bones(B)

@@ -29,7 +29,7 @@ import numpy as np
 from .errors import TrackError
 from .results import atomic_write
 
-__all__ = ["write_html", "show", "build_scene"]
+__all__ = ["write_html", "show", "build_scene", "upright_poses"]
 
 COLORS = {"reconstruction": 0x1F77B4, "truth": 0x2CA02C, "points": 0xD62728}
 
@@ -51,6 +51,7 @@ class _OfflineWindow:
     web_url = None
 
     def __init__(self) -> None:
+        _import_meshcat()
         from meshcat.servers.tree import SceneTree
         from meshcat.servers.zmqserver import ZMQWebSocketBridge
 
@@ -71,10 +72,17 @@ class _OfflineWindow:
         return self._reply.data.decode("utf-8")
 
 
-def _offline_visualizer() -> Any:
-    import meshcat
+def _import_meshcat() -> Any:
+    import warnings
 
-    return meshcat.Visualizer(window=_OfflineWindow())
+    with warnings.catch_warnings():  # meshcat 0.3.2 imports a pyzmq module deprecated since pyzmq 17
+        warnings.simplefilter("ignore", DeprecationWarning)
+        import meshcat
+    return meshcat
+
+
+def _offline_visualizer() -> Any:
+    return _import_meshcat().Visualizer(window=_OfflineWindow())
 
 
 # ---------------------------------------------------------------------------------------- geometry
@@ -230,6 +238,19 @@ def _stand(poses: np.ndarray, root: int) -> np.ndarray:
     return out
 
 
+def upright_poses(rec_or_poses: Any, *, chain: Any = None, truth: Any = None) -> np.ndarray:
+    """The poses (F, J, 3) as the viewer shows them: turned Z-up, root centred in x, y, feet on z = 0.
+
+    Used to export a reconstruction (which lives in its camera's frame) as an upright BVH motion.
+    """
+    poses, chain, cameras = _unpack(rec_or_poses, chain)
+    if chain is None:
+        raise TrackError("poses need chain= to find the root")
+    poses = _check_poses(poses, chain.n_joints, "poses")
+    truth = None if truth is None else _check_poses(truth, chain.n_joints, "truth poses")
+    return _stand(poses @ _upright(poses, chain, truth, cameras).T, chain.joint_index(chain.root))
+
+
 def _extent(*pose_sets: np.ndarray) -> float:
     pts = np.concatenate([p.reshape(-1, 3) for p in pose_sets if p is not None])
     return float(np.max(np.ptp(pts, axis=0))) or 1.0
@@ -286,7 +307,7 @@ def build_scene(vis: Any, rec_or_poses: Any = None, *, chain: Any = None, truth:
             shift = np.array([0.0, 1.2 * size, 0.0])
             add_skeleton(scene["truth"], animation, truth + shift, chain, color=COLORS["truth"],
                          radius=0.012 * size, fps=fps)
-        centre, size = np.mean(base.reshape(-1, 3), axis=0), _extent(base, truth)
+        shown = base.reshape(-1, 3) if truth is None else np.concatenate([base, truth + shift]).reshape(-1, 3)
     else:
         if truth is not None and truth.shape[1:] != poses.shape[1:]:
             raise TrackError(f"truth has shape {truth.shape}, the poses {poses.shape}")
@@ -301,20 +322,25 @@ def build_scene(vis: Any, rec_or_poses: Any = None, *, chain: Any = None, truth:
             add_skeleton(scene["truth"], animation, staged, chain, color=COLORS["truth"],
                          radius=0.02 * size, fps=fps)
             shown = np.concatenate([shown, staged], axis=1)
-        centre, size = np.mean(shown.reshape(-1, 3), axis=0), _extent(shown)
-    _frame_camera(vis, centre, size)
+    _frame_camera(vis, shown.reshape(-1, 3), _extent(shown))
     vis.set_animation(animation, play=True, repetitions=float("inf"))
     return animation
 
 
-def _frame_camera(vis: Any, centre: np.ndarray, size: float) -> None:
-    """Aim meshcat's default camera at ``centre`` from far enough to see ``size`` metres."""
+def _frame_camera(vis: Any, points: np.ndarray, size: float) -> None:
+    """Aim meshcat's default camera at the middle of ``points`` (N, 3), broadside to their widest
+    horizontal spread (an arm's reach, or the reconstruction and truth side by side)."""
     import meshcat.transformations as tf
 
+    centre = points.mean(axis=0)
+    xy = points[:, :2] - centre[:2]
+    _, vecs = np.linalg.eigh(xy.T @ xy)
+    side = np.array([-vecs[1, 1], vecs[0, 1]])  # perpendicular to the principal horizontal axis
+    side = side if side[0] + 1e-3 * side[1] >= 0 else -side
     vis["/Cameras/default"].set_transform(tf.translation_matrix(centre))
-    d = 1.5 * size
-    # the camera object sits in a Y-up (three.js) node: [x, up, -y] in meshcat's Z-up world
-    vis["/Cameras/default/rotated/<object>"].set_property("position", [d, 0.4 * d, 0.35 * d])
+    d = 1.25 * size
+    # the camera object sits in a Y-up (three.js) node: world (x, y, z) is [x, z, -y] there
+    vis["/Cameras/default/rotated/<object>"].set_property("position", [d * side[0], 0.45 * d, -d * side[1]])
 
 
 # ---------------------------------------------------------------------------------------- entry points
@@ -343,9 +369,7 @@ def show(rec_or_poses: Any = None, *, chain: Any = None, truth: Any = None, fit:
     Prints the viewer's URL; ``open_browser=True`` also opens it. The server lives as long as the
     returned Visualizer (keep the process running to look at it).
     """
-    import meshcat
-
-    vis = meshcat.Visualizer(zmq_url)
+    vis = _import_meshcat().Visualizer(zmq_url)
     vis.delete()
     build_scene(vis, rec_or_poses, chain=chain, truth=truth, fit=fit, fps=fps)
     if open_browser:

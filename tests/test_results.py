@@ -93,7 +93,8 @@ def test_save_joint_fit(tmp_path):
                           observable=np.array([True, False]), positions=np.zeros((F, 3, 3)),
                           residual_3d=np.full(F, 0.002), residual_px=None, converged=np.ones(F, bool), scale=1.0,
                           rotation=np.eye(3), translation=np.zeros(3), cameras=None, translations_2d=None,
-                          chain=_chain(), urdf_path="arm.urdf", message="ok", n_iter=3)
+                          chain=_chain().with_rest_pose(np.eye(3)), urdf_path="arm.urdf", message="ok", n_iter=3)
+    fit.chain.metadata.update(q_rest=np.zeros(2), extra_frames={"tip": ("b", np.array([0.0, 0.0, 0.1]))})
     save_results(fit, tmp_path / "fit")
     header, *rows = (tmp_path / "fit" / "joint_angles.csv").read_text().splitlines()
     assert header == "frame,j1,j2" and len(rows) == F
@@ -102,11 +103,30 @@ def test_save_joint_fit(tmp_path):
     assert summary["residual_3d_mm"]["mean"] == pytest.approx(2.0)
     assert summary["converged_fraction"] == 1.0
     back = load_results(tmp_path / "fit" / "joint_angles.npz")
-    assert back.kind == "joint_fit" and back.joint_names == ["j1", "j2"] and back.urdf_path == "arm.urdf"
+    assert back.joint_names == ["j1", "j2"] and back.urdf_path == "arm.urdf" and back.n_iter == 3
     np.testing.assert_allclose(back.q, fit.q)
+    np.testing.assert_array_equal(back.observable, fit.observable)
+    np.testing.assert_allclose(back.chain.rest_pose, np.eye(3))
+    assert back.chain.metadata["extra_frames"] == {"tip": ["b", [0.0, 0.0, 0.1]]}
 
 
 def test_save_results_rejects_unknown_objects(tmp_path):
     with pytest.raises(ChainspaceError, match="cannot save"):
         save_results(object(), tmp_path)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_real_reconstruction_round_trip(tmp_path):
+    rec_mod = pytest.importorskip("chainspace.reconstruct")
+    datasets = pytest.importorskip("chainspace.datasets")
+    synthetic = pytest.importorskip("chainspace.synthetic")
+    chain, poses = datasets.human17(), datasets.cmu_walk(35, 1)[:40]
+    tracks = synthetic.observe(poses, synthetic.orbit_cameras(len(poses), seed=1, scale=300.0), seed=2)
+    rec = rec_mod.reconstruct(tracks, chain, truth=poses, seed=0)
+    save_results(rec, tmp_path)
+    back = load_results(tmp_path / "reconstruction.npz")
+    assert isinstance(back, rec_mod.Reconstruction)
+    np.testing.assert_allclose(back.poses, rec.poses)
+    assert back.chain.joints == chain.joints and back.method == rec.method and back.converged == rec.converged
+    assert back.reprojection_error() == pytest.approx(rec.reprojection_error())
+    assert back.history["kcs"]["reprojection"] == pytest.approx(rec.history["kcs"]["reprojection"])

@@ -159,3 +159,54 @@ def test_bad_yaml_and_files(tmp_path):
     (tmp_path / "x.json").write_text("{}")
     with pytest.raises(DescriptionError, match=".toml, .yaml"):
         from_skeleton_file(tmp_path / "x.json")
+
+
+# ------------------------------------------------------------------------------------------ fuzzing
+def _fuzz_loaders(tmp_path_factory):
+    from chainspace import from_asf, load_bvh
+    from chainspace.datasets import bundled_data_dir
+
+    arm = (Path(__file__).parent / "test_bvh.py").read_text().split('ARM = """', 1)[1].split('"""', 1)[0]
+    return {
+        "asf": ((bundled_data_dir() / "cmu" / "35.asf").read_text(), from_asf),
+        "bvh": (arm, load_bvh),
+        "toml": ((ROBOTS / "human17.toml").read_text(), from_skeleton_file),
+    }
+
+
+def test_mutated_descriptions_raise_only_chainspace_errors(tmp_path_factory):
+    """Deleted, truncated and corrupted lines in ASF, BVH and TOML files: ChainspaceError or success."""
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    from chainspace import ChainspaceError
+
+    loaders = _fuzz_loaders(tmp_path_factory)
+    folder = tmp_path_factory.mktemp("fuzz")
+    junk = st.sampled_from(["", "0", "-1", "nan", "1e999", "x", "{", "}", "begin", "end", ":root", "(", "ROOT",
+                            "JOINT", "[", "]", '"', "=", "root", "End Site", "MOTION", "Frames: 2", "CHANNELS 9"])
+    edit = st.tuples(st.sampled_from(["delete", "replace", "insert", "truncate"]), st.floats(0, 1), junk)
+
+    @settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+    @given(kind=st.sampled_from(sorted(loaders)), edits=st.lists(edit, min_size=1, max_size=4))
+    def check(kind, edits):
+        text, load = loaders[kind]
+        lines = text.splitlines()
+        for op, where, token in edits:
+            i = int(where * len(lines)) if lines else 0
+            if op == "delete" and i < len(lines):
+                del lines[i]
+            elif op == "replace" and i < len(lines):
+                lines[i] = token
+            elif op == "insert":
+                lines.insert(i, token)
+            else:
+                lines = lines[:i]
+        f = folder / f"x.{kind}"
+        f.write_text("\n".join(lines) + "\n")
+        try:
+            load(f)
+        except ChainspaceError:
+            pass
+
+    check()

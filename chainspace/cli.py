@@ -1,0 +1,443 @@
+"""The ``chainspace`` command.
+
+Exit codes, for scripts: 0 success; 1 the work ran but its result is not good (a reconstruction or fit
+that did not converge, a validation that failed); 2 bad usage or bad input (the message says what and
+where, on one line of stderr, without a traceback). Every command that writes refuses to replace an
+existing file unless given ``--overwrite``, and writes each file atomically.
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+import time
+import warnings
+from collections.abc import Callable
+from enum import Enum
+from pathlib import Path
+from typing import Annotated, Any, Optional
+
+import numpy as np
+import typer
+
+from .errors import ChainspaceError, TrackError
+
+__all__ = ["app", "main"]
+
+app = typer.Typer(
+    name="chainspace",
+    help="3D motion of kinematic chains (humans, animals, robot arms) from 2D tracks of one uncalibrated "
+         "camera, and robot joint angles fitted and validated against the URDF.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+EXIT_OK, EXIT_NOT_GOOD, EXIT_BAD_INPUT = 0, 1, 2
+
+
+def _console() -> Any:
+    from rich.console import Console
+
+    return Console(stderr=True, highlight=False)
+
+
+def _fail(message: str, code: int) -> typer.Exit:
+    _console().print(f"chainspace: error: {message}", markup=False, soft_wrap=True)
+    return typer.Exit(code)
+
+
+def _guarded(func: Callable[..., Any]) -> Callable[..., Any]:
+    """Turn chainspace's errors into one line on stderr and exit code 2, and warnings into one line."""
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            with warnings.catch_warnings():
+                warnings.showwarning = _show_warning
+                return func(*args, **kwargs)
+        except ChainspaceError as exc:
+            raise _fail(str(exc), EXIT_BAD_INPUT) from None
+        except (FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError) as exc:
+            raise _fail(f"{exc.filename or ''}: {exc.strerror or exc}", EXIT_BAD_INPUT) from None
+
+    return wrapper
+
+
+def _show_warning(message: Any, category: Any, *args: Any, **kwargs: Any) -> None:
+    _console().print(f"chainspace: warning: {message}", markup=False, soft_wrap=True)
+
+
+def _status(message: str) -> Any:
+    """A spinner on stderr while long work runs (silent when stderr is not a terminal)."""
+    return _console().status(message, spinner="dots")
+
+
+def _say(message: str) -> None:
+    _console().print(message, markup=False, soft_wrap=True)
+
+
+# ---------------------------------------------------------------------------------------- inputs
+def _load_array(path: Path, what: str, keys: tuple[str, ...] = ()) -> np.ndarray:
+    """An array from .npy, .npz (first of ``keys`` present) or .csv (header row, first column frame)."""
+    if not path.exists():
+        raise TrackError(f"{path}: no such {what} file")
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".npy":
+            return np.load(path, allow_pickle=False)
+        if suffix == ".npz":
+            with np.load(path, allow_pickle=False) as z:
+                for k in keys:
+                    if k in z.files:
+                        return z[k]
+                raise TrackError(f"{path}: none of {', '.join(keys)} in the archive (found {', '.join(z.files)})")
+        if suffix == ".csv":
+            data = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float)
+            return np.atleast_2d(data)[:, 1:]
+    except (OSError, ValueError, EOFError) as exc:
+        raise TrackError(f"{path}: cannot read the {what}: {exc}") from None
+    raise TrackError(f"{path}: {what} must be .npy, .npz or .csv")
+
+
+def _load_poses(path: Path | None, chain: Any) -> np.ndarray | None:
+    if path is None:
+        return None
+    X = np.asarray(_load_array(path, "poses", ("poses", "positions", "truth")), dtype=float)
+    if X.ndim != 3 or X.shape[1:] != (chain.n_joints, 3):
+        raise TrackError(f"{path}: poses have shape {X.shape}, expected (frames, {chain.n_joints}, 3)")
+    return X
+
+
+def _load_q(path: Path, nq: int) -> np.ndarray:
+    q = np.asarray(_load_array(path, "joint angles", ("q", "truth_q")), dtype=float)
+    if q.ndim != 2 or q.shape[1] != nq:
+        raise TrackError(f"{path}: joint angles have shape {q.shape}, expected (frames, {nq})")
+    return q
+
+
+def _check_outputs(paths: list[Path | None], overwrite: bool) -> None:
+    from .results import check_writable
+
+    check_writable([p for p in paths if p is not None], overwrite)
+
+
+class Method(str, Enum):
+    default = "default"
+    kcs = "kcs"
+    rigid = "rigid"
+
+
+class Camera(str, Enum):
+    static = "static"
+    per_frame = "per-frame"
+
+
+class Suite(str, Enum):
+    reconstruction = "reconstruction"
+    robots = "robots"
+    speed = "speed"
+    robustness = "robustness"
+
+
+Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace existing output files.")]
+
+
+# ---------------------------------------------------------------------------------------- commands
+@app.command(epilog="Example: chainspace chains")
+@_guarded
+def chains() -> None:
+    """List the chain descriptions shipped with chainspace, with their joint counts."""
+    from .descriptions import list_shipped, shipped
+
+    for name in list_shipped():
+        chain = shipped(name)
+        kind = chain.metadata.get("kind", Path(name).suffix.lstrip("."))
+        typer.echo(f"{Path(name).stem:<20} {chain.n_joints:>3} joints  {chain.n_bones:>3} bones  "
+                   f"{len(chain.rigid_links):>2} rigid links  ({kind}, {name})")
+
+
+@app.command(epilog="Example: chainspace reconstruct walk.csv --chain human17 --out results/ --bvh walk.bvh")
+@_guarded
+def reconstruct(
+    tracks: Annotated[Path, typer.Argument(help="2D tracks: .csv, .npy, .npz, COCO/MediaPipe .json, "
+                                                "or an OpenPose folder.")],
+    chain: Annotated[str, typer.Option("--chain", "-c", help="Shipped name (chainspace chains) or a "
+                                                             ".urdf/.asf/.bvh/.toml file.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Folder for reconstruction.npz/.csv/.json.")],
+    init_pose: Annotated[Optional[Path], typer.Option(help="Initial pose (J, 3) in metres, .npy/.csv; "
+                                                           "default the chain's rest pose.")] = None,
+    method: Annotated[Method, typer.Option(help="default (KCS then refinement), kcs, or rigid.")] = Method.default,
+    format: Annotated[Optional[str], typer.Option(help="Track format if not guessed: csv, npy, npz, coco, "
+                                                       "openpose, mediapipe.")] = None,
+    image_size: Annotated[Optional[tuple[float, float]], typer.Option(
+        help="Image width and height in px (MediaPipe landmarks are normalised).")] = None,
+    truth: Annotated[Optional[Path], typer.Option(help="True poses (F, J, 3) m, .npy: adds the 3D error.")] = None,
+    bvh: Annotated[Optional[Path], typer.Option(help="Also write the motion as BVH (human chains).")] = None,
+    fps: Annotated[float, typer.Option(help="Frame rate of the tracks (BVH and viewer).")] = 30.0,
+    html: Annotated[Optional[Path], typer.Option(help="Also write a standalone HTML viewer.")] = None,
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    overwrite: Overwrite = False,
+) -> None:
+    """Reconstruct 3D motion from the 2D tracks of a chain seen by one camera.
+
+    Writes reconstruction.npz (all arrays), reconstruction.csv (frame,joint,x,y,z in metres) and
+    reconstruction.json (convergence, errors, timings) into --out. Exit code 1 if it did not converge.
+    """
+    from .descriptions import load_chain
+    from .reconstruct import reconstruct as run
+    from .results import save_results
+    from .tracks import load_tracks
+
+    _check_outputs([out / f"reconstruction.{x}" for x in ("npz", "csv", "json")] + [bvh, html], overwrite)
+    kc = load_chain(chain)
+    W, conf, _ = load_tracks(tracks, chain=kc, format=format, image_size=image_size)
+    X0 = None if init_pose is None else _load_array(init_pose, "initial pose", ("init_pose", "pose"))
+    X_true = _load_poses(truth, kc)
+    with _status(f"reconstructing {W.shape[0]} frames of {kc.name} ({method.value})"):
+        rec = run(W, kc, X0, method.value, confidence=conf, truth=X_true, seed=seed)
+    for p in save_results(rec, out, overwrite=overwrite):
+        _say(f"wrote {p}")
+    if bvh is not None:
+        from .bvh import save_bvh
+        from .viewer import upright_poses
+
+        _say(f"wrote {save_bvh(bvh, kc, upright_poses(rec, truth=X_true), fps, overwrite)}")
+    if html is not None:
+        from .viewer import write_html
+
+        _say(f"wrote {write_html(html, rec, truth=X_true, fps=fps, overwrite=overwrite)}")
+    typer.echo(repr(rec))
+    if not rec.converged:
+        raise _fail(f"the reconstruction did not converge: {rec.message}", EXIT_NOT_GOOD)
+
+
+@app.command(epilog="Example: chainspace fit results/reconstruction.npz --urdf robots/milling_arm.urdf --out fit/")
+@_guarded
+def fit(
+    source: Annotated[Path, typer.Argument(help="A reconstruction .npz of a URDF chain, or 2D tracks "
+                                                "(reconstructed first).")],
+    urdf: Annotated[Optional[str], typer.Option(help="The robot's URDF (file or shipped name); default "
+                                                     "the one the reconstruction's chain came from.")] = None,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Folder for joint_angles.npz/.csv/.json.")] = Path("."),
+    camera: Annotated[Camera, typer.Option(help="static (tripod) or per-frame camera.")] = Camera.static,
+    format: Annotated[Optional[str], typer.Option(help="Track format when SOURCE is tracks.")] = None,
+    html: Annotated[Optional[Path], typer.Option(help="Also write a standalone HTML viewer of the fit.")] = None,
+    fps: Annotated[float, typer.Option(help="Frame rate (viewer).")] = 30.0,
+    overwrite: Overwrite = False,
+) -> None:
+    """Fit the robot's joint angles (Pinocchio) to a reconstruction or to 2D tracks.
+
+    Writes joint_angles.npz, joint_angles.csv (frame, one column per joint, radians) and
+    joint_angles.json into --out. Exit code 1 if some frames did not converge.
+    """
+    from .descriptions import load_chain
+    from .fit import fit_joint_angles
+    from .results import load_results, save_results
+
+    _check_outputs([out / f"joint_angles.{x}" for x in ("npz", "csv", "json")] + [html], overwrite)
+    urdf_path = None if urdf is None else _urdf_path(urdf)
+    if source.suffix.lower() == ".npz" and _is_result(source):
+        rec = load_results(source)
+        if not hasattr(rec, "poses"):
+            raise TrackError(f"{source}: this is a joint fit, not a reconstruction")
+    else:
+        if urdf_path is None:
+            raise TrackError("fitting 2D tracks needs --urdf")
+        from .reconstruct import reconstruct as run
+        from .tracks import load_tracks
+
+        kc = load_chain(urdf_path)
+        W, conf, _ = load_tracks(source, chain=kc, format=format)
+        with _status(f"reconstructing {W.shape[0]} frames of {kc.name}"):
+            rec = run(W, kc, confidence=conf)
+    with _status(f"fitting joint angles to {rec.poses.shape[0]} frames"):
+        result = fit_joint_angles(rec, urdf_path, camera=camera.value)
+    for p in save_results(result, out, overwrite=overwrite):
+        _say(f"wrote {p}")
+    if html is not None:
+        from .viewer import write_html
+
+        _say(f"wrote {write_html(html, rec, fit=result, fps=fps, overwrite=overwrite)}")
+    typer.echo(repr(result))
+    if not np.all(result.converged):
+        raise _fail(f"{int(np.sum(~np.asarray(result.converged)))} frames did not converge: {result.message}",
+                    EXIT_NOT_GOOD)
+
+
+def _urdf_path(urdf: str) -> str:
+    p = Path(urdf)
+    if p.is_file():
+        return str(p)
+    from .descriptions import shipped_path
+
+    return str(shipped_path(urdf))
+
+
+def _is_result(path: Path) -> bool:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return "kind" in z.files
+    except (OSError, ValueError, EOFError):
+        return False
+
+
+@app.command(epilog="Example: chainspace validate fit/joint_angles.npz --truth truth_q.npy --out fit/")
+@_guarded
+def validate(
+    fit_file: Annotated[Path, typer.Argument(metavar="FIT", help="joint_angles.npz written by 'chainspace fit'.")],
+    truth: Annotated[Optional[Path], typer.Option(help="True joint angles (F, nq) rad: .npy, .csv or .npz "
+                                                       "('q').")] = None,
+    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Folder for validation.json/.md.")] = None,
+    overwrite: Overwrite = False,
+) -> None:
+    """Validate a joint-angle fit: per-joint angle errors against the truth, reprojection error, and
+    bone lengths against the URDF. Prints the report table; exit code 1 if validation failed."""
+    from .results import load_results, save_results
+    from .validate import validate as run
+
+    if out is not None:
+        _check_outputs([out / "validation.json", out / "validation.md"], overwrite)
+    fitted = load_results(fit_file)
+    if not hasattr(fitted, "q"):
+        raise TrackError(f"{fit_file}: not a joint fit (write one with 'chainspace fit')")
+    truth_q = None if truth is None else _load_q(truth, np.shape(fitted.q)[1])
+    if truth_q is not None and len(truth_q) != len(fitted.q):
+        raise TrackError(f"{truth}: {len(truth_q)} frames of joint angles for a fit of {len(fitted.q)} frames")
+    report = run(fitted, truth_q)
+    typer.echo(report.table())
+    if out is not None:
+        for p in save_results(report, out, overwrite=overwrite):
+            _say(f"wrote {p}")
+    if not report.passed:
+        raise _fail("validation failed", EXIT_NOT_GOOD)
+
+
+@app.command(epilog="Example: chainspace view results/reconstruction.npz --html walk.html")
+@_guarded
+def view(
+    result: Annotated[Path, typer.Argument(help="reconstruction.npz or joint_angles.npz.")],
+    html: Annotated[Optional[Path], typer.Option(help="Write a standalone HTML file instead of opening a "
+                                                      "live viewer.")] = None,
+    truth: Annotated[Optional[Path], typer.Option(help="True poses (F, J, 3) m, .npy, shown beside.")] = None,
+    reconstruction: Annotated[Optional[Path], typer.Option(help="With a joint fit: the reconstruction to "
+                                                                "draw over the robot.")] = None,
+    fps: Annotated[float, typer.Option(help="Playback frame rate.")] = 30.0,
+    open_browser: Annotated[bool, typer.Option("--open", help="Open the live viewer in a browser.")] = False,
+    overwrite: Overwrite = False,
+) -> None:
+    """Animate a result in meshcat: the skeleton (and the truth beside it), or the fitted robot.
+
+    With --html, writes one HTML file that a browser opens from disk with no server or network;
+    otherwise starts a live viewer, prints its URL and runs until Ctrl-C.
+    """
+    from .results import load_results
+    from .viewer import show, write_html
+
+    if html is not None:
+        _check_outputs([html], overwrite)
+    loaded = load_results(result)
+    if hasattr(loaded, "q"):
+        rec = None if reconstruction is None else load_results(reconstruction)
+        kwargs = {"fit": loaded, "truth": _load_poses(truth, loaded.chain)}
+    else:
+        rec, kwargs = loaded, {"truth": _load_poses(truth, loaded.chain)}
+    if html is not None:
+        _say(f"wrote {write_html(html, rec, fps=fps, overwrite=overwrite, **kwargs)}")
+        return
+    show(rec, fps=fps, open_browser=open_browser, **kwargs)
+    _say("live viewer running; press Ctrl-C to stop")
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+
+
+# Benchmark suites: (module, function returning rows, function formatting them).
+_SUITES = {
+    "reconstruction": ("benchmark", "run_benchmark", "format_table"),
+    "speed": ("benchmark", "run_speed", "format_speed"),
+    "robustness": ("benchmark", "run_robustness", "format_robustness"),
+    "robots": ("benchmark_robots", "run_robot_benchmark", "format_robot_table"),
+}
+
+
+@app.command(epilog="Example: chainspace bench --suite robots --quick")
+@_guarded
+def bench(
+    suite: Annotated[Suite, typer.Option(help="Which benchmark.")] = Suite.reconstruction,
+    quick: Annotated[bool, typer.Option("--quick", help="A short version (fewer sequences and cameras).")] = False,
+) -> None:
+    """Run a benchmark and print its table (millimetres, degrees, seconds)."""
+    import importlib
+
+    module, run_name, fmt_name = _SUITES[suite.value]
+    try:
+        mod = importlib.import_module(f".{module}", __package__)
+        run, fmt = getattr(mod, run_name), getattr(mod, fmt_name)
+    except (ImportError, AttributeError):
+        raise _fail(f"the {suite.value} benchmark is not available in this installation "
+                    f"(chainspace.{module}.{run_name})", EXIT_BAD_INPUT) from None
+    console = _console()
+    with console.status(f"running the {suite.value} benchmark{' (quick)' if quick else ''}") as status:
+        rows = run(quick=quick, progress=lambda m: (console.log(m, markup=False), status.update(m)))
+    typer.echo(fmt(rows))
+
+
+@app.command(epilog="Example: chainspace demo --out demo-output --overwrite")
+@_guarded
+def demo(
+    out: Annotated[Path, typer.Option("--out", "-o", help="Folder for everything the demo writes.")] =
+    Path("demo-output"),
+    seed: Annotated[int, typer.Option(help="Random seed of the synthetic trial.")] = 0,
+    overwrite: Overwrite = False,
+) -> None:
+    """The main job on bundled data: the milling arm filmed by one camera, reconstructed, its joint angles
+    fitted and validated. Writes into --out the fitted joint angles, the validation report, plots and a
+    standalone HTML viewer (viewer.html). Exit code 1 if validation failed."""
+    from .demo import run_demo
+
+    summary = run_demo(out, overwrite=overwrite, progress=True, seed=seed)
+    for p in _demo_extras(out, summary, overwrite):
+        _say(f"wrote {p}")
+    for key in ("message", "table"):
+        if isinstance(summary.get(key), str):
+            typer.echo(summary[key])
+    if summary.get("passed") is False:
+        raise _fail("the demo's validation failed", EXIT_NOT_GOOD)
+
+
+def _demo_extras(out: Path, summary: dict, overwrite: bool) -> list[Path]:
+    """The viewer and plots for a demo run, from the objects (or files) its summary names."""
+    from .plots import plot_convergence, plot_joint_angles, plot_joint_errors
+    from .results import load_results
+    from .viewer import write_html
+
+    def obj(key: str, file_key: str) -> Any:
+        if summary.get(key) is not None:
+            return summary[key]
+        path = summary.get(file_key)
+        return load_results(path) if path else None
+
+    rec, fitted = obj("reconstruction", "reconstruction_path"), obj("fit", "fit_path")
+    report, truth_q, truth = summary.get("report"), summary.get("truth_q"), summary.get("truth_positions")
+    written = []
+    if fitted is not None:
+        written.append(write_html(out / "viewer.html", rec, fit=fitted, truth=truth, overwrite=overwrite))
+        written.append(plot_joint_angles(fitted, truth_q, out / "joint_angles.png", overwrite=overwrite))
+    if rec is not None and getattr(rec, "history", None):
+        written.append(plot_convergence(rec, out / "convergence.png", overwrite=overwrite))
+    if report is not None:
+        written.append(plot_joint_errors(report, out / "joint_errors.png", overwrite=overwrite))
+    return written
+
+
+def main() -> None:  # pragma: no cover - the console script
+    app()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,269 @@
+"""Synthetic robot footage: a known joint trajectory filmed by a known camera, as 2D tracks.
+
+:func:`synthesize` is how a user checks a camera set-up before filming: it moves the robot of a URDF
+along a smooth trajectory inside its joint limits, films it with a weak-perspective camera (static, as
+from a tripod, or slowly orbiting), adds pixel noise and dropped points, and returns the tracks with
+the truth (joint angles, 3D points, cameras). Fit the tracks with :func:`chainspace.fit_joint_angles`
+and compare with :func:`chainspace.validate`.
+
+Units: metres, radians, pixels (image y axis pointing down); q in the order of Pinocchio's model of the
+URDF. Forward and inverse kinematics are Pinocchio's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .chain import KinematicChain
+from .errors import DescriptionError, TrackError
+from .fit import RobotKinematics
+
+__all__ = ["RobotTrial", "synthesize", "random_trajectory", "milling_trajectory"]
+
+
+@dataclass
+class RobotTrial:
+    """A synthetic recording of a robot: the truth and what a tracker would see.
+
+    chain (points = URDF link origins and tool frames), q (F, nq) radians/metres in Pinocchio order,
+    positions (F, J, 3) metres in the robot's base frame, cameras (F, 2, 3) px per metre (rows: image
+    right, image down; ``tracks = positions @ cameras^T + translations + noise``), translations (F, 2)
+    px, tracks (F, J, 2) px with NaN where a point was dropped, confidence (F, J) in [0, 1], fps.
+    """
+
+    chain: KinematicChain
+    q: np.ndarray
+    positions: np.ndarray
+    cameras: np.ndarray
+    translations: np.ndarray
+    tracks: np.ndarray
+    confidence: np.ndarray
+    fps: float
+    urdf_path: str = ""
+    noise_px: float = 0.0
+    trajectory: str = "random"
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.q)
+
+
+# ---------------------------------------------------------------------------------------------------
+# trajectories
+# ---------------------------------------------------------------------------------------------------
+def _window(robot: RobotKinematics, margin: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    """Per q entry the range a trajectory may use: the joint limits (at most one turn, centred on the
+    rest pose for wider ones), less a margin at each end."""
+    lo = np.where(robot.limited, robot.lower, robot.q_rest - np.pi)
+    hi = np.where(robot.limited, robot.upper, robot.q_rest + np.pi)
+    wide = hi - lo > 2 * np.pi
+    lo = np.where(wide, np.maximum(lo, robot.q_rest - np.pi), lo)
+    hi = np.where(wide, np.minimum(hi, robot.q_rest + np.pi), hi)
+    pad = margin * (hi - lo)
+    return lo + pad, hi - pad
+
+
+def random_trajectory(robot: RobotKinematics, n_frames: int, fps: float, rng: np.random.Generator,
+                      *, amplitude: float = 0.45, max_hz: float = 0.3) -> np.ndarray:
+    """Smooth random joint motion (F, nq): per joint a sum of three sinusoids of random low frequency
+    (at most ``max_hz``) and phase around the middle of its window, reaching about ``amplitude`` of the
+    window's half width, clipped into the limits. Multi-dof joints (nq != nv) stay at rest."""
+    t = np.arange(n_frames)[:, None, None] / float(fps)
+    lo, hi = _window(robot)
+    freq = rng.uniform(0.2, 1.0, (1, robot.nq, 3)) * max_hz
+    phase = rng.uniform(0, 2 * np.pi, (1, robot.nq, 3))
+    weights = rng.dirichlet(np.ones(3), robot.nq)[None]
+    wave = (weights * np.sin(2 * np.pi * freq * t + phase)).sum(-1)
+    centre = 0.5 * (lo + hi) + rng.uniform(-0.25, 0.25, robot.nq) * (hi - lo) * (1 - amplitude)
+    q = centre + amplitude * 0.5 * (hi - lo) * wave / max(np.abs(wave).max(), 1e-12)
+    q = np.where(robot.v_of_q >= 0, q, robot.q_rest)  # multi-dof joints (cos/sin, quaternions) stay at rest
+    return robot.clip(q)
+
+
+def _tip_index(chain: KinematicChain) -> int:
+    """The deepest point of the chain (the tool tip when one is tracked)."""
+    depth = np.zeros(chain.n_joints, int)
+    parents = chain.parents
+    for j in range(chain.n_joints):
+        k = j
+        while parents[k] >= 0:
+            depth[j] += 1
+            k = parents[k]
+    return int(np.argmax(depth))
+
+
+def _rounded_rectangle(n: int, width: float, height: float, radius: float) -> np.ndarray:
+    """(n, 2) points evenly spaced by arc length along a closed rounded rectangle centred at 0."""
+    a, b, r = width / 2 - radius, height / 2 - radius, radius
+    segs = [2 * b, 0.5 * np.pi * r, 2 * a, 0.5 * np.pi * r, 2 * b, 0.5 * np.pi * r, 2 * a, 0.5 * np.pi * r]
+    ends = np.cumsum(segs)
+    s = np.linspace(0, ends[-1], n, endpoint=False)
+    out = np.empty((n, 2))
+    corners = [(a, b, 0.0), (-a, b, 0.5 * np.pi), (-a, -b, np.pi), (a, -b, 1.5 * np.pi)]
+    starts = np.concatenate([[0], ends[:-1]])
+    for i in range(8):
+        m = (s >= starts[i]) & (s < ends[i])
+        d = s[m] - starts[i]
+        side = i // 2
+        if i % 2 == 0:  # straight side, counter-clockwise
+            p0 = [(a + r, -b), (a, b + r), (-a - r, b), (-a, -b - r)][side]
+            dirn = [(0, 1), (-1, 0), (0, -1), (1, 0)][side]
+            out[m] = np.array(p0) + d[:, None] * np.array(dirn)
+        else:
+            cx, cy, ang0 = corners[side]
+            ang = ang0 + d / r
+            out[m] = np.stack([cx + r * np.cos(ang), cy + r * np.sin(ang)], -1)
+    return out
+
+
+def _working_pose(robot: RobotKinematics, tip: int, rng: np.random.Generator, n: int = 400) -> np.ndarray:
+    """A configuration to mill from: dexterous (large manipulability of the tip), tool pointing down,
+    tip in front of the robot between its base and shoulder height."""
+    pin = robot.pin
+    lo, hi = _window(robot, 0.2)
+    qs = robot.clip(np.where(robot.v_of_q >= 0, rng.uniform(lo, hi, (n, robot.nq)), robot.q_rest))
+    pos, jac = robot.jacobians(qs)
+    base = pos[:, robot.chain.joint_index(robot.chain.root)]
+    reach = robot.reach()
+    fid = robot.frame_ids[tip]
+    score = np.empty(n)
+    for k, q in enumerate(qs):
+        J6 = pin.computeFrameJacobian(robot.model, robot.data, q, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+        down = -robot.data.oMf[fid].rotation[2, 2]  # tool z axis pointing down
+        manip = np.sqrt(max(np.linalg.det(J6 @ J6.T), 0.0)) if J6.shape[1] >= 6 else \
+            np.sqrt(max(np.linalg.det(jac[k, tip] @ jac[k, tip].T), 0.0))
+        h = (pos[k, tip, 2] - base[k, 2]) / reach
+        r = np.linalg.norm(pos[k, tip, :2] - base[k, :2]) / reach
+        score[k] = manip ** (1 / 6) * (1 + down) * (0.1 < h < 0.5) * (0.35 < r < 0.75)
+    return qs[int(np.argmax(score))]
+
+
+def milling_trajectory(robot: RobotKinematics, n_frames: int, rng: np.random.Generator,
+                       *, size: float = 0.35, laps: float = 1.0) -> np.ndarray:
+    """Joint motion (F, nq) whose tool tip (the deepest chain point) traces a rounded rectangle in a
+    horizontal plane with the tool's orientation held, solved by damped least-squares IK on the full
+    6D pose (Pinocchio's log6 error and frame Jacobian), warm-started frame to frame, inside the
+    limits. ``size`` is the rectangle's longer side as a fraction of the robot's reach."""
+    pin = robot.pin
+    tip = _tip_index(robot.chain)
+    fid = robot.frame_ids[tip]
+    q = _working_pose(robot, tip, rng)
+    pin.framesForwardKinematics(robot.model, robot.data, q)
+    start = robot.data.oMf[fid].copy()
+    reach = robot.reach()
+    w, h = size * reach, 0.6 * size * reach
+    path = _rounded_rectangle(max(int(round(n_frames / laps)), 2), w, h, 0.2 * h)
+    path = np.resize(path, (n_frames, 2)) - path[0]  # start where the tool is
+    yaw = rng.uniform(0, 2 * np.pi)
+    c, s = np.cos(yaw), np.sin(yaw)
+    path = path @ np.array([[c, s], [-s, c]])
+    out = np.empty((n_frames, robot.nq))
+    for f in range(n_frames):
+        target = pin.SE3(start.rotation, start.translation + np.array([path[f, 0], path[f, 1], 0.0]))
+        for _ in range(100):
+            pin.framesForwardKinematics(robot.model, robot.data, q)
+            iMd = robot.data.oMf[fid].actInv(target)
+            err = pin.log6(iMd).vector
+            if np.linalg.norm(err) < 1e-10:
+                break
+            J = pin.computeFrameJacobian(robot.model, robot.data, q, fid, pin.ReferenceFrame.LOCAL)
+            J = -pin.Jlog6(iMd.inverse()) @ J
+            v = -J.T @ np.linalg.solve(J @ J.T + 1e-8 * np.eye(6), err)
+            q = robot.clip(pin.integrate(robot.model, q, v))
+        out[f] = q
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------
+# filming
+# ---------------------------------------------------------------------------------------------------
+def synthesize(
+    urdf_or_chain: str | Path | KinematicChain,
+    *,
+    n_frames: int = 300,
+    fps: float = 30.0,
+    camera: str = "static",
+    noise_px: float = 1.0,
+    drop: float = 0.0,
+    image_height_px: float = 800.0,
+    seed: Any = None,
+    trajectory: str | None = "random",
+    elevation_deg: float | None = None,
+) -> RobotTrial:
+    """Film a robot moving along a known trajectory.
+
+    Parameters
+    ----------
+    urdf_or_chain
+        A URDF path, or a chain made by :func:`chainspace.from_urdf` (its points are tracked).
+    n_frames, fps
+        Length and frame rate of the recording.
+    camera
+        ``"static"`` (one weak-perspective camera, a tripod) or ``"moving"`` (orbits 10 degrees about
+        the vertical over the sequence). Random azimuth; elevation random in [10, 35] degrees above the
+        base plane unless ``elevation_deg`` is given.
+    noise_px
+        Standard deviation of Gaussian noise per image coordinate, pixels.
+    drop
+        Fraction of points dropped at random (NaN in the tracks, confidence 0).
+    image_height_px
+        The robot's extent in the image over the sequence (the larger side of its bounding box), px.
+    trajectory
+        ``"random"`` (smooth random motion of every joint within its limits) or ``"milling"`` (the tool
+        tip traces a rounded rectangle in a horizontal plane, tool orientation held).
+    seed
+        Seed for the trajectory, camera, noise and drops.
+    """
+    chain = _chain(urdf_or_chain)
+    if camera not in ("static", "moving"):
+        raise DescriptionError(f"camera must be 'static' or 'moving', not {camera!r}")
+    trajectory = trajectory or "random"
+    if trajectory not in ("random", "milling"):
+        raise DescriptionError(f"trajectory must be 'random' or 'milling', not {trajectory!r}")
+    if int(n_frames) < 2:
+        raise TrackError(f"n_frames must be at least 2, not {n_frames}")
+    if not (0 <= drop < 1) or noise_px < 0 or image_height_px <= 0 or fps <= 0:
+        raise TrackError("need 0 <= drop < 1, noise_px >= 0, image_height_px > 0 and fps > 0")
+    from .synthetic import observe, orbit_cameras
+
+    rng = np.random.default_rng(seed)
+    robot = RobotKinematics(chain.metadata["urdf_path"], chain)
+    n_frames = int(n_frames)
+    q = (random_trajectory(robot, n_frames, fps, rng) if trajectory == "random"
+         else milling_trajectory(robot, n_frames, rng))
+    positions = robot.positions(q)
+    elev = rng.uniform(10.0, 35.0) if elevation_deg is None else float(elevation_deg)
+    cam_seed = int(rng.integers(2 ** 31))
+    unit = orbit_cameras(n_frames, sweep_deg=0.0 if camera == "static" else 10.0, elevation_deg=elev,
+                         seed=cam_seed)
+    flat = observe(positions, unit)
+    extent = max(np.ptp(flat[..., 0]), np.ptp(flat[..., 1]))
+    scale = image_height_px / max(extent, 1e-12)
+    cameras = unit * scale
+    margin = 0.1 * image_height_px
+    translations = np.broadcast_to(margin - scale * flat.reshape(-1, 2).min(0), (n_frames, 2)).copy()
+    tracks = observe(positions, cameras, translations=translations, noise_px=noise_px,
+                     seed=int(rng.integers(2 ** 31)))
+    confidence = np.ones(tracks.shape[:2])
+    if drop > 0:
+        gone = rng.random(confidence.shape) < drop
+        tracks[gone] = np.nan
+        confidence[gone] = 0.0
+    return RobotTrial(chain=chain, q=q, positions=positions, cameras=cameras, translations=translations,
+                      tracks=tracks, confidence=confidence, fps=float(fps), urdf_path=chain.metadata["urdf_path"],
+                      noise_px=float(noise_px), trajectory=trajectory)
+
+
+def _chain(urdf_or_chain: Any) -> KinematicChain:
+    if isinstance(urdf_or_chain, KinematicChain):
+        if not urdf_or_chain.metadata.get("urdf_path"):
+            raise DescriptionError(f"chain {urdf_or_chain.name!r} has no URDF (metadata['urdf_path']); make it "
+                                   "with chainspace.from_urdf")
+        return urdf_or_chain
+    from .urdf import from_urdf
+
+    return from_urdf(urdf_or_chain)

@@ -1,0 +1,66 @@
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from chainspace import TrackError
+from chainspace.camera import fit_cameras, project
+
+
+def _case(F=40, L=12, seed=0, noise=0.0):
+    rng = np.random.default_rng(seed)
+    B = rng.normal(size=(F, L, 3))
+    R = Rotation.random(F, random_state=seed).as_matrix()
+    s = rng.uniform(50, 500, F)
+    P = s[:, None, None] * R[:, :2]
+    W = np.einsum("fij,flj->fli", P, B) + noise * rng.normal(size=(F, L, 2))
+    return B, P, W
+
+
+def test_exact_cameras_are_recovered():
+    B, P, W = _case()
+    np.testing.assert_allclose(fit_cameras(W, B), P, atol=1e-7 * np.abs(P).max())
+    # column layout (F, 2, L) / (F, 3, L) as in the paper
+    np.testing.assert_allclose(fit_cameras(np.swapaxes(W, 1, 2), np.swapaxes(B, 1, 2)), P, atol=1e-7 * np.abs(P).max())
+
+
+def test_constraints_hold_under_noise_and_fit_beats_truth():
+    B, P, W = _case(noise=5.0, seed=1)
+    Pf, s, R = fit_cameras(W, B, return_rotation=True)
+    np.testing.assert_allclose((Pf[:, 0] * Pf[:, 1]).sum(-1), 0.0, atol=1e-9 * s.max() ** 2)
+    np.testing.assert_allclose(np.linalg.norm(Pf, axis=-1), np.stack([s, s], -1), rtol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-12)
+    res = lambda Q: ((W - np.einsum("fij,flj->fli", Q, B)) ** 2).sum((1, 2))  # noqa: E731
+    # the fitted camera is at least as good as the true one in every frame (a minimum)
+    assert np.all(res(Pf) <= res(P) * (1 + 1e-9))
+
+
+def test_weights_and_nan_ignore_corrupted_bones():
+    B, P, W = _case(seed=2)
+    Wc = W.copy()
+    Wc[:, 0] += 1000.0
+    w = np.ones(W.shape[:2])
+    w[:, 0] = 0.0
+    np.testing.assert_allclose(fit_cameras(Wc, B, w), P, atol=1e-6 * np.abs(P).max())
+    Wn = W.copy()
+    Wn[:, 0] = np.nan
+    np.testing.assert_allclose(fit_cameras(Wn, B), P, atol=1e-6 * np.abs(P).max())
+
+
+def test_frames_without_data_take_the_nearest_camera():
+    B, P, W = _case(F=5, seed=3)
+    W[2] = np.nan
+    Pf = fit_cameras(W, B)
+    assert np.isfinite(Pf).all()
+    np.testing.assert_allclose(Pf[2], Pf[1])
+
+
+def test_project_and_shape_errors():
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(3, 4, 3))
+    P = rng.normal(size=(3, 2, 3))
+    t = rng.normal(size=(3, 2))
+    np.testing.assert_allclose(project(X, P, t), np.einsum("fij,fkj->fki", P, X) + t[:, None])
+    with pytest.raises(TrackError):
+        project(X, P[:, :, :2])
+    with pytest.raises(TrackError):
+        fit_cameras(np.zeros((3, 4, 2)), np.zeros((3, 5, 3)))

@@ -1,0 +1,102 @@
+"""The chainspace command through typer's test runner: outputs, exit codes, messages."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from chainspace.cli import app
+
+runner = CliRunner()
+
+
+def _run(*args: str):
+    return runner.invoke(app, [str(a) for a in args], catch_exceptions=False)
+
+
+@pytest.fixture(scope="module")
+def walk(tmp_path_factory):
+    """Synthetic 2D tracks (CSV) of a bundled CMU walk, seen by one orbiting camera."""
+    datasets = pytest.importorskip("chainspace.datasets")
+    synthetic = pytest.importorskip("chainspace.synthetic")
+    from chainspace.tracks import save_tracks
+
+    d = tmp_path_factory.mktemp("walk")
+    chain, poses = datasets.human17(), datasets.cmu_walk(35, 1)[:40]
+    tracks = synthetic.observe(poses, synthetic.orbit_cameras(len(poses), seed=1, scale=300.0), noise_px=0.5,
+                               seed=2)
+    save_tracks(d / "walk.csv", tracks, chain.joints)
+    np.save(d / "truth.npy", poses)
+    return d
+
+
+@pytest.mark.parametrize("command", ["chains", "reconstruct", "fit", "validate", "view", "bench", "demo"])
+def test_help_has_an_example(command):
+    result = _run(command, "--help")
+    assert result.exit_code == 0
+    assert f"Example: chainspace {command}" in result.output
+
+
+def test_chains_lists_shipped_descriptions():
+    result = _run("chains")
+    assert result.exit_code == 0
+    line = next(ln for ln in result.output.splitlines() if ln.startswith("human17 "))
+    assert "17 joints" in line and "16 bones" in line
+
+
+def test_reconstruct_writes_results_and_refuses_to_overwrite(walk, tmp_path):
+    out = tmp_path / "res"
+    result = _run("reconstruct", walk / "walk.csv", "--chain", "human17", "--out", out, "--truth",
+                  walk / "truth.npy", "--bvh", tmp_path / "walk.bvh", "--html", tmp_path / "walk.html")
+    assert result.exit_code == 0, result.output
+    summary = json.loads((out / "reconstruction.json").read_text())
+    assert summary["converged"] is True and summary["n_frames"] == 40
+    assert summary["errors"]["error_3d_by_stage_m"]["refine"] < 0.1  # metres: the truth was given
+    header = (out / "reconstruction.csv").read_text().splitlines()[0]
+    assert header == "frame,joint,x,y,z"
+    bvh = (tmp_path / "walk.bvh").read_text()
+    assert bvh.startswith("HIERARCHY") and "Frames: 40" in bvh
+    assert (tmp_path / "walk.html").stat().st_size > 100_000
+    before = (out / "reconstruction.npz").read_bytes()
+    again = runner.invoke(app, ["reconstruct", str(walk / "walk.csv"), "-c", "human17", "-o", str(out)])
+    assert again.exit_code == 2
+    assert "already exists" in again.stderr and "--overwrite" in again.stderr
+    assert (out / "reconstruction.npz").read_bytes() == before
+    forced = _run("reconstruct", walk / "walk.csv", "-c", "human17", "-o", out, "--overwrite", "--method", "kcs")
+    summary = json.loads((out / "reconstruction.json").read_text())
+    assert summary["method"] == "kcs"
+    assert forced.exit_code == (0 if summary["converged"] else 1)  # 1: the run worked but did not converge
+    if not summary["converged"]:
+        assert "did not converge" in forced.stderr
+    # the saved result opens in the viewer
+    view = _run("view", out / "reconstruction.npz", "--html", tmp_path / "view.html")
+    assert view.exit_code == 0 and (tmp_path / "view.html").exists()
+
+
+@pytest.mark.parametrize("content,message", [
+    ("frame,joint,x,y\n0,pelvis,1,2\n0,left_hip,oops,2\n", "walk.csv:3: malformed"),
+    ("frame,joint,u,v\n0,pelvis,1,2\n", "walk.csv:1: wrong columns"),
+    ("", "empty"),
+    ("frame,joint,x,y\n0,wing,1,2\n", "no joint name of the tracks matches"),
+])
+def test_bad_input_exits_2_with_one_line(tmp_path, content, message):
+    (tmp_path / "walk.csv").write_text(content)
+    result = runner.invoke(app, ["reconstruct", str(tmp_path / "walk.csv"), "-c", "human17", "-o",
+                                 str(tmp_path / "out")])
+    assert result.exit_code == 2
+    assert message in result.stderr
+    assert "Traceback" not in result.output and len(result.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()
+
+
+def test_usage_errors_exit_2(tmp_path):
+    assert runner.invoke(app, ["reconstruct", str(tmp_path / "x.csv")]).exit_code == 2  # no --chain
+    result = runner.invoke(app, ["reconstruct", str(tmp_path / "x.csv"), "-c", "human17", "-o", str(tmp_path)])
+    assert result.exit_code == 2 and "no such track file" in result.stderr
+    result = runner.invoke(app, ["reconstruct", str(tmp_path / "x.csv"), "-c", "nobody", "-o", str(tmp_path)])
+    assert result.exit_code == 2 and "no shipped description 'nobody'" in result.stderr
+    result = runner.invoke(app, ["view", str(tmp_path / "missing.npz"), "--html", str(tmp_path / "v.html")])
+    assert result.exit_code == 2 and "no such result file" in result.stderr

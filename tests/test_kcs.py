@@ -1,0 +1,43 @@
+import numpy as np
+
+from chainspace.datasets import human17
+from chainspace.kcs import kcs_factorize
+from chainspace.metrics import error_3d
+from chainspace.synthetic import observe, orbit_cameras, swing_motion
+
+
+def _case(noise=0.0, F=90, seed=0):
+    chain = human17()
+    X = swing_motion(chain, F, fps=120.0, seed=seed)
+    P = orbit_cameras(F, scale=400.0, seed=seed)
+    W = observe(X, P, translations=[450.0, 450.0], noise_px=noise, seed=seed)
+    return chain, X, W
+
+
+def test_algorithm1_fits_the_tracks_and_keeps_camera_constraints():
+    chain, X, W = _case()
+    r = kcs_factorize(W, np.ones(W.shape[:2]), chain, chain.rest_pose, truth=X, error_fn=error_3d)
+    h = r.history["reprojection"]
+    assert len(h) == r.n_iter + 1 and len(r.history["error_3d"]) == len(h)
+    assert h[-1] < 0.05 * h[0]  # the deformation explains the tracks
+    assert h[-1] < 2.0  # px, on a subject ~ 700 px tall
+    assert r.poses.shape == X.shape and r.cameras.shape == (len(X), 2, 3)
+    P = r.cameras
+    np.testing.assert_allclose((P[:, 0] * P[:, 1]).sum(-1), 0, atol=1e-8 * r.scales.max() ** 2)
+    np.testing.assert_allclose(np.linalg.norm(P, axis=-1), np.stack([r.scales] * 2, -1))
+    # the 3D error improves on the initial pose (entry 0)
+    assert r.history["error_3d"][-1] < r.history["error_3d"][0]
+
+
+def test_nan_and_zero_confidence_are_the_same():
+    chain, X, W = _case(F=40, seed=1)
+    c = np.ones(W.shape[:2])
+    Wn = W.copy()
+    mask = np.random.default_rng(0).random(c.shape) < 0.1
+    Wn[mask] = np.nan
+    c0 = np.where(mask, 0.0, 1.0)
+    Wg = np.where(mask[..., None], 1e4, W)  # garbage where the weight is 0
+    a = kcs_factorize(Wn, c, chain, chain.rest_pose)
+    b = kcs_factorize(Wg, c0, chain, chain.rest_pose)
+    np.testing.assert_allclose(a.poses, b.poses, atol=1e-9)
+    assert np.isfinite(a.poses).all()

@@ -1,0 +1,54 @@
+import numpy as np
+import pytest
+
+from chainspace.datasets import human17
+from chainspace.kcs import bone_observations, kcs_factorize
+from chainspace.refine import refine_bones
+from chainspace.synthetic import observe, orbit_cameras, swing_motion
+
+
+def _setup(noise=0.0, F=80, seed=0):
+    chain = human17()
+    X = swing_motion(chain, F, fps=120.0, seed=seed)
+    P = orbit_cameras(F, scale=400.0, seed=seed)
+    W = observe(X, P, noise_px=noise, seed=seed)
+    c = np.ones(W.shape[:2])
+    k = kcs_factorize(W, c, chain, chain.rest_pose)
+    nb = chain.n_bones
+    Wb, wb = bone_observations(chain, W, c)
+    R = k.rotations
+    x0 = np.einsum("fij,flj->fli", R, chain.bone_vectors(k.poses)[:, :nb])
+    prior = np.einsum("fij,lj->fli", R, chain.bone_vectors(chain.rest_pose)[:nb])
+    return chain, X, Wb[:, :nb], wb[:, :nb], k.scales, prior, x0
+
+
+@pytest.mark.parametrize("noise", [0.0, 3.0])
+def test_objective_never_increases(noise):
+    _, _, Wb, wb, s, prior, x0 = _setup(noise)
+    r = refine_bones(Wb, wb, s, prior, x0, max_iter=8, tol=0.0)
+    h = np.array(r.history["objective"])
+    assert len(h) == 1 + 3 * r.n_iter
+    assert np.all(np.diff(h) <= 1e-12 * h[0])
+    assert h[-1] < h[0]
+
+
+def test_never_starts_worse_than_the_initial_pose():
+    _, _, Wb, wb, s, prior, x0 = _setup(seed=1)
+    bad = x0 + 5.0  # a terrible "KCS" start
+    r = refine_bones(Wb, wb, s, prior, bad, max_iter=3)
+    assert r.start != "kcs"
+    from chainspace.refine import _Problem, _energy, _best_lengths  # the same objective
+    pb = _Problem(Wb, wb, s, prior, float(np.median(s)) ** 2, 10.0, 4.0, 1e-3, r.history["delta"][0])
+    assert r.history["objective"][-1] <= _energy(pb, prior, _best_lengths(prior)).sum() + 1e-9
+
+
+def test_lengths_become_constant_and_data_is_kept():
+    chain, X, Wb, wb, s, prior, x0 = _setup()
+    r = refine_bones(Wb, wb, s, prior, x0, max_iter=10)
+    L = np.linalg.norm(r.bones, axis=-1)
+    cv = L.std(0) / L.mean(0)
+    L0 = np.linalg.norm(x0, axis=-1)
+    assert cv.mean() < 0.25 * (L0.std(0) / L0.mean(0)).mean()
+    # in-image parts still match the 2D bones (px)
+    rep = np.linalg.norm(s[:, None, None] * r.bones[..., :2] - Wb, axis=-1)
+    assert np.median(rep) < 1.0
