@@ -8,7 +8,11 @@ Needs ../shared/data (or $CHAINSPACE_DATA). Prints one markdown table.
 
 from __future__ import annotations
 
-import argparse
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # tiny matrices: BLAS threads only add overhead
+
+import argparse  # noqa: E402
 import sys
 
 from chainspace.benchmark import format_table, run_benchmark

@@ -33,7 +33,8 @@ from .metrics import error_3d
 from .synthetic import observe, orbit_cameras, scale_for_span
 
 __all__ = ["Row", "sequence_groups", "evaluate_sequence", "run_benchmark", "format_table", "COLUMNS",
-           "IMAGE_HEIGHT_PX", "SPAN_PX"]
+           "IMAGE_HEIGHT_PX", "SPAN_PX", "run_speed", "format_speed", "run_robustness", "format_robustness",
+           "hide_points"]
 
 IMAGE_HEIGHT_PX = 900
 SPAN_PX = 0.8 * IMAGE_HEIGHT_PX
@@ -76,7 +77,10 @@ def sequence_groups(names: Iterable[str] | None = None, *, quick: bool = False) 
                 out[g] = (human, datasets.cmu09_runs(), "")
             elif g.endswith("(DeepMimic)"):
                 chain, poses = datasets.deepmimic_clip(g.split()[0])
-                out[g] = (chain, [poses], "DeepMimic humanoid, its zero pose as initial pose")
+                # The humanoid's zero pose is planar (arms down, straight legs): it cannot tell
+                # front from back. Start from the human17 mean pose (CMU 02/07/16) on its joints.
+                mean = human.subset(chain.joints).rest_pose
+                out[g] = (chain.with_rest_pose(mean), [poses], "initial pose: human17 rest pose")
             else:
                 raise ChainspaceError(f"unknown sequence group {g!r}")
         except ChainspaceError as exc:
@@ -121,13 +125,18 @@ def run_benchmark(
     groups: Iterable[str] | None = None,
     *,
     noise_levels: Sequence[float] = (0.0, 2.0, 5.0),
-    n_cameras: int = 20,
+    n_cameras: int | None = None,
     quick: bool = False,
     columns: Sequence[str] = COLUMNS,
     extra: Sequence[Callable[..., list[Row]]] = (),
     progress: Callable[[str], None] | None = None,
 ) -> list[Row]:
-    """Run the protocol; returns the rows (print them with :func:`format_table`)."""
+    """Run the protocol; returns the rows (print them with :func:`format_table`).
+
+    ``n_cameras`` camera paths per sequence: 20 (the paper) by default, 3 when ``quick`` (which also
+    keeps at most 3 sequences per group).
+    """
+    n_cameras = n_cameras if n_cameras is not None else (3 if quick else 20)
     rows = []
     for name, (chain, seqs, note) in sequence_groups(groups, quick=quick).items():
         for noise in noise_levels:
@@ -164,4 +173,138 @@ def format_table(rows: Sequence[Row], columns: Sequence[str] = COLUMNS) -> str:
     lines.append("")
     lines.append("3D error in mm, rigid / similarity per-frame Procrustes alignment, mean over frames, "
                  "sequences and camera paths; seconds per sequence in brackets.")
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------ speed
+def run_speed(sizes: Sequence[int] = (100, 1_000, 10_000, 100_000), *, quick: bool = False,
+              progress: Callable[[str], None] | None = None) -> list[dict[str, float]]:
+    """Seconds and frames/s of the KCS stage and of the default pipeline for each number of frames.
+
+    A human17 chain in smooth motion (:func:`chainspace.synthetic.swing_motion` at 120 Hz), a
+    low-motion orbit camera, 2 px noise. ``quick`` stops at 10,000 frames.
+    """
+    from .datasets import human17
+    from .reconstruct import reconstruct
+    from .synthetic import swing_motion
+
+    chain = human17()
+    rows = []
+    for n in [n for n in sizes if not quick or n <= 10_000]:
+        X = swing_motion(chain, n, fps=120.0, seed=0)
+        P = orbit_cameras(n, scale=scale_for_span(X, SPAN_PX), seed=0)
+        W = observe(X, P, translations=[IMAGE_HEIGHT_PX / 2] * 2, noise_px=2.0, seed=1)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            t0 = time.perf_counter()
+            reconstruct(W, chain, method="kcs")
+            t_kcs = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            rec = reconstruct(W, chain)
+            t_def = time.perf_counter() - t0
+        rows.append({"frames": n, "kcs_s": t_kcs, "default_s": t_def,
+                     "refine_share": rec.timings.get("refine", 0.0) / max(sum(rec.timings.values()), 1e-12)})
+        if progress:
+            progress(f"{n} frames: KCS {t_kcs:.2f} s, default {t_def:.2f} s")
+    return rows
+
+
+def format_speed(rows: Sequence[dict[str, float]]) -> str:
+    """Markdown table of :func:`run_speed`; flat frames/s means cost linear in frames."""
+    lines = ["| frames | KCS s | KCS frames/s | default s | default frames/s | refine share |",
+             "|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        n = r["frames"]
+        lines.append(f"| {n:,} | {r['kcs_s']:.2f} | {n / r['kcs_s']:,.0f} | {r['default_s']:.2f} | "
+                     f"{n / r['default_s']:,.0f} | {r['refine_share']:.0%} |")
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------- robustness
+_LIMBS = (("left_knee", "left_ankle"), ("right_knee", "right_ankle"),
+          ("left_elbow", "left_wrist"), ("right_elbow", "right_wrist"))
+
+
+def hide_points(tracks: np.ndarray, chain: Any, fraction: float, *, mode: str = "random",
+                fps: float = 120.0, seed: int = 0) -> np.ndarray:
+    """Tracks with about ``fraction`` of the points set to NaN.
+
+    ``mode="random"``: independent points. ``mode="limbs"``: whole lower limbs (knee and ankle, or
+    elbow and wrist) hidden for one second at a time, at random times, until the fraction is reached.
+    """
+    rng = np.random.default_rng(seed)
+    W = np.array(tracks, dtype=float)
+    F, J = W.shape[:2]
+    if fraction <= 0:
+        return W
+    if mode == "random":
+        W[rng.random((F, J)) < fraction] = np.nan
+        return W
+    limbs = [[chain.joint_index(j) for j in limb] for limb in _LIMBS if all(j in chain for j in limb)]
+    span = max(int(round(fps)), 1)
+    gone = np.zeros((F, J), bool)
+    for _ in range(10_000):
+        if gone.mean() >= fraction or not limbs:
+            break
+        limb = limbs[rng.integers(len(limbs))]
+        start = int(rng.integers(0, max(F - span, 1)))
+        gone[start:start + span, limb] = True
+    W[gone] = np.nan
+    return W
+
+
+def run_robustness(*, quick: bool = False, progress: Callable[[str], None] | None = None,
+                   noise_levels: Sequence[float] = (0.0, 1.0, 2.0, 5.0, 10.0),
+                   missing: Sequence[float] = (0.0, 0.1, 0.2, 0.3, 0.5)) -> list[dict[str, Any]]:
+    """3D error of KCS and the default pipeline on the subject-35 walks against pixel noise and
+    against missing data (random points, and whole limbs hidden for a second), 2 px noise with
+    missing data. Rows: {"condition", "level", "kcs", "default" (metres), "runs"}."""
+    from . import datasets
+    from .reconstruct import reconstruct
+
+    chain = datasets.human17()
+    trials = [amc.stem.split("_")[1] for _, amc in datasets.cmu_trials(35)] or ["01", "02"]
+    trials = trials[:3] if quick else trials
+    n_cam = 2 if quick else 5
+    seqs = [datasets.cmu_walk(35, t) for t in trials]
+    conditions = [("noise px", v, "none") for v in noise_levels]
+    conditions += [("random missing", v, "random") for v in missing]
+    conditions += [("limbs hidden", v, "limbs") for v in missing if v > 0]
+    rows = []
+    for name, level, mode in conditions:
+        acc: dict[str, list[float]] = {"kcs": [], "default": []}
+        for i, X in enumerate(seqs):
+            for cam in range(n_cam):
+                seed = _seed("robust", i, cam)
+                P = orbit_cameras(len(X), scale=scale_for_span(X, SPAN_PX), seed=seed)
+                noise = level if mode == "none" else 2.0
+                W = observe(X, P, translations=[IMAGE_HEIGHT_PX / 2] * 2, noise_px=noise, seed=seed + 1)
+                if mode != "none":
+                    W = hide_points(W, chain, level, mode=mode, seed=seed + 2)
+                for method in acc:
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore")
+                        try:
+                            acc[method].append(error_3d(reconstruct(W, chain, method=method).poses, X))
+                        except ChainspaceError:
+                            acc[method].append(np.nan)
+        rows.append({"condition": name, "level": level, "runs": len(acc["kcs"]),
+                     **{m: float(np.nanmean(v)) for m, v in acc.items()}})
+        if progress:
+            progress(f"{name} {level:g}: default {rows[-1]['default'] * 1000:.1f} mm")
+    return rows
+
+
+def format_robustness(rows: Sequence[dict[str, Any]]) -> str:
+    """Markdown table of :func:`run_robustness` (mm; ratio = default / default on full data)."""
+    lines = ["| condition | level | runs | KCS mm | default mm | default / 2 px full data |",
+             "|---|---:|---:|---:|---:|---:|"]
+    ref = next((r["default"] for r in rows if r["condition"] == "random missing" and r["level"] == 0), None)
+    for r in rows:
+        lvl = f"{r['level']:g}" if r["condition"] == "noise px" else f"{r['level']:.0%}"
+        ratio = f"{r['default'] / ref:.2f}" if ref and r["condition"] != "noise px" else "-"
+        lines.append(f"| {r['condition']} | {lvl} | {r['runs']} | {r['kcs'] * 1000:.1f} | "
+                     f"{r['default'] * 1000:.1f} | {ratio} |")
+    lines.append("")
+    lines.append("CMU subject-35 walks, human17 rest pose as the initial pose; missing-data rows at 2 px noise.")
     return "\n".join(lines)

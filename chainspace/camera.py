@@ -23,7 +23,7 @@ import numpy as np
 
 from .errors import TrackError
 
-__all__ = ["fit_cameras", "project", "camera_scale", "complete_rotation", "rodrigues"]
+__all__ = ["fit_cameras", "project", "camera_scale", "complete_rotation", "rodrigues", "smooth_scales"]
 
 
 def _rows(a: np.ndarray, dim: int, other: int | None, name: str) -> np.ndarray:
@@ -207,3 +207,29 @@ def project(poses: Any, cameras: Any, translations: Any = None) -> np.ndarray:
     if translations is not None:
         out = out + np.asarray(translations, dtype=float)[..., None, :]
     return out
+
+
+def smooth_scales(scales: Any, weights: Any = None, *, degree: int = 2, n_iter: int = 3) -> np.ndarray:
+    """Slowly varying camera scales (F,): a robust polynomial fit in time to ``log(scales)``.
+
+    Per-frame weak-perspective scales fitted to a deforming chain jitter by several percent (each
+    frame's bones are foreshortened differently), while the camera distance changes slowly; the
+    jitter feeds straight into the in-image part of every bone. The fit (``degree`` 2 by default,
+    reweighted ``n_iter`` times with Cauchy weights) keeps slow zooms and drops the jitter.
+    """
+    s = np.asarray(scales, dtype=float)
+    F = len(s)
+    w = np.ones(F) if weights is None else np.asarray(weights, float).copy()
+    ok = np.isfinite(s) & (s > 0) & (w > 0)
+    if ok.sum() <= degree + 1:
+        return np.full(F, np.median(s[ok]) if ok.any() else 1.0)
+    t = np.linspace(-1.0, 1.0, F)
+    V = np.vander(t, degree + 1)
+    y = np.log(np.where(ok, s, 1.0))
+    w = np.where(ok, w, 0.0)
+    for _ in range(n_iter):
+        coef = np.linalg.lstsq(V * np.sqrt(w)[:, None], y * np.sqrt(w), rcond=None)[0]
+        r = y - V @ coef
+        mad = 1.4826 * np.median(np.abs(r[ok])) + 1e-12
+        w = np.where(ok, 1.0 / (1.0 + (r / (2.0 * mad)) ** 2), 0.0)
+    return np.exp(V @ coef)

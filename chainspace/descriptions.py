@@ -11,6 +11,7 @@ import difflib
 import importlib
 import importlib.metadata
 import importlib.resources
+import inspect
 import sys
 from pathlib import Path
 from typing import Any
@@ -114,7 +115,12 @@ def load_chain(path_or_name: str | Path, **kwargs: Any) -> KinematicChain:
             f"{path}: unknown description format {suffix or '(no extension)'!r}; "
             f"known: {', '.join(sorted(_LOADERS))}"
         )
-    return _loader(suffix)(path, **kwargs)
+    loader = _loader(suffix)
+    try:  # an unknown option is the caller's mistake: say so rather than raise a bare TypeError
+        inspect.signature(loader).bind(path, **kwargs)
+    except TypeError as exc:
+        raise DescriptionError(f"{path}: {loader.__name__} does not take these options: {exc}") from None
+    return loader(path, **kwargs)
 
 
 def _example_robot_data_root() -> Path | None:

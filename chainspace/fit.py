@@ -55,6 +55,8 @@ import numpy as np
 from .chain import KinematicChain
 from .errors import ConvergenceWarning, DescriptionError, DescriptionNotFoundError, TrackError
 
+import os
+_DEBUG = bool(os.environ.get("CS_DEBUG"))
 __all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"]
 
 
@@ -317,9 +319,13 @@ def _skew(v: np.ndarray) -> np.ndarray:
 
 
 def _rotvec(w: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_rotvec(w).as_matrix()
+    """Rotation matrices (..., 3, 3) of rotation vectors (..., 3) (Rodrigues)."""
+    th = np.linalg.norm(w, axis=-1)[..., None, None]
+    K = _skew(w)
+    small = th < 1e-8
+    a = np.where(small, 1.0, np.sin(th) / np.where(small, 1.0, th))
+    b = np.where(small, 0.5, (1 - np.cos(th)) / np.where(small, 1.0, th ** 2))
+    return np.eye(3) + a * K + b * K @ K
 
 
 def _affine_camera(x: np.ndarray, u: np.ndarray, w: np.ndarray, per_frame: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -338,6 +344,15 @@ def _affine_camera(x: np.ndarray, u: np.ndarray, w: np.ndarray, per_frame: bool)
         cams[g] = S.mean() * (U @ Vt)
         ts[g] = sol[3]
     return cams, ts
+
+
+def _camera_view(x: np.ndarray, u: np.ndarray, w: np.ndarray, per_frame: bool) -> _View:
+    """The weak-perspective camera(s) closest to u ~ P x + t, as a view for the solvers."""
+    F = len(x)
+    P0, t20 = _affine_camera(x, u, w, per_frame)
+    views = [_camera_to_rotation(P) for P in (P0 if per_frame else P0[:1])]
+    return _View(np.array([v[0] for v in views]), np.array([v[1] for v in views]),
+                 t20 if per_frame else t20[:1], np.arange(F) if per_frame else np.zeros(F, int))
 
 
 def _camera_to_rotation(M: np.ndarray) -> tuple[float, np.ndarray]:
@@ -409,6 +424,114 @@ class _View:
         return self.S[c][:, None, None] * self.R[c][:, : self.T.shape[1]]
 
 
+def _normal_equations(view: _View, jac: np.ndarray, y: np.ndarray, res: np.ndarray, ww: np.ndarray,
+                      free: np.ndarray, free_view: np.ndarray):
+    """Gauss-Newton blocks of the weighted residuals res (F, J, D) = S (R x)[:D] + T - target.
+
+    jac (F, J, 3, nv) point Jacobians, y = R x (F, J, 3), ww (F, J) IRLS weights. Returns per frame
+    Hqq (F, nv, nv), Hqc (F, nv, nc), gq (F, nv) and per view Hcc (C, nc, nc), gc (C, nc); view
+    parameters: rotation vector, scale, translation (nc = 4 + D).
+    """
+    F, J, D = res.shape
+    sc = view.S[view.cam_of][:, None, None, None]
+    Jq = np.einsum("fdc,fjcv->fjdv", view.matrices(), jac) * free[:, None, None, :]
+    Jc = np.concatenate([-sc * _skew(y)[..., :D, :], y[..., :D, None],
+                         np.broadcast_to(np.eye(D), (F, J, D, D))], -1) * free_view
+    Hqq = np.einsum("fjdv,fj,fjdu->fvu", Jq, ww, Jq)
+    Hqc = np.einsum("fjdv,fj,fjdc->fvc", Jq, ww, Jc)
+    gq = np.einsum("fjdv,fj,fjd->fv", Jq, ww, res)
+    C, nc = len(view.S), 4 + D
+    Hcc, gc = np.zeros((C, nc, nc)), np.zeros((C, nc))
+    np.add.at(Hcc, view.cam_of, np.einsum("fjdc,fj,fjde->fce", Jc, ww, Jc))
+    np.add.at(gc, view.cam_of, np.einsum("fjdc,fj,fjd->fc", Jc, ww, res))
+    return Hqq, Hqc, gq, Hcc, gc
+
+
+def _second_differences(F: int):
+    """(F-2, F) sparse second-difference operator: (L q)[f] = q[f] - 2 q[f+1] + q[f+2]."""
+    import scipy.sparse as sp
+
+    return sp.diags([np.ones(F - 2), -2 * np.ones(F - 2), np.ones(F - 2)], [0, 1, 2], shape=(F - 2, F))
+
+
+def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
+               free: np.ndarray, free_view: np.ndarray, max_iter: int, tol: float, delta: float | None,
+               mu: float):
+    """Levenberg-Marquardt of :func:`_sequence_lm` for one shared view, plus a smoothness prior
+    mu * sum |q[f] - 2 q[f+1] + q[f+2]|^2 (joint accelerations) that couples neighbouring frames.
+
+    The joint-angle block of the normal equations is then banded (two frames either side); it is
+    factored as a banded Cholesky (scipy.linalg.cholesky_banded) and the view eliminated by a
+    Schur complement, so an iteration stays linear in the number of frames. Same returns.
+    """
+    from scipy.linalg import cho_solve_banded, cholesky_banded
+
+    F, J, D = target.shape
+    nv, nc = robot.nv, 4 + D
+    N = F * nv
+    u = 3 * nv - 1  # upper bandwidth: frame f couples to f + 2
+    tz = np.nan_to_num(target)
+    L = _second_differences(F)
+    LtL = (L.T @ L).tocsr()
+    frozen = (~free).reshape(-1)
+    cols = np.arange(N)
+
+    def band(Hqq, extra):
+        ab = np.zeros((u + 1, N))
+        for a_ in range(nv):  # block diagonal: (f nv + a, f nv + b) for b >= a
+            for b_ in range(a_, nv):
+                ab[u - (b_ - a_), np.arange(F) * nv + b_] += Hqq[:, a_, b_]
+        for k in range(3):  # prior: LtL diagonal k, same dof in frames f and f + k
+            d = LtL.diagonal(k) * mu
+            for a_ in range(nv):
+                ab[u - k * nv, np.arange(F - k) * nv + k * nv + a_] += d
+        ab[u] += extra
+        return ab
+
+    def evaluate(q, view):
+        pos, jac = robot.jacobians(q)
+        pred, y = view.apply(pos)
+        res = pred - tz
+        data = float((w * _huber(np.linalg.norm(res, axis=-1), delta)[0]).sum())
+        return pos, jac, y, res, data + mu * float(((L @ q) ** 2).sum())
+
+    pos, jac, y, res, cost = evaluate(q, view)
+    lam, converged, it = 1e-4, False, 0
+    for it in range(1, max_iter + 1):
+        ww = w * _huber(np.linalg.norm(res, axis=-1), delta)[1]
+        Hqq, Hqc, gq, Hcc, gc = _normal_equations(view, jac, y, res, ww, free, free_view)
+        gq = gq.reshape(-1) + mu * (LtL @ q).reshape(-1)
+        gq[frozen] = 0.0
+        Hx = Hqc.reshape(N, nc)
+        diag_q = np.einsum("fvv->fv", Hqq).reshape(-1) + mu * np.repeat(LtL.diagonal(), nv)
+        for _ in range(12):
+            ab = band(Hqq, lam * (diag_q + 1e-9 * diag_q.mean()) + frozen * 1e12)
+            sol = cho_solve_banded((cholesky_banded(ab, check_finite=False), False), np.column_stack([gq, Hx]),
+                                   check_finite=False)
+            Hc = Hcc[0] + np.diag(lam * (np.diag(Hcc[0]) + 1e-12) + (~free_view) * 1.0)
+            dc = -np.linalg.solve(Hc - Hx.T @ sol[:, 1:], gc[0] - Hx.T @ sol[:, 0]) * free_view
+            dq = (-(sol[:, 0] + sol[:, 1:] @ dc)).reshape(F, nv) * free
+            q_t, v_t = robot.integrate(q, dq), view.moved(dc[None])
+            trial = evaluate(q_t, v_t)
+            if trial[-1] <= cost:
+                break
+            lam *= 10
+        else:
+            converged = True
+            break
+        rel = (cost - trial[-1]) / max(cost, 1e-300)
+        if _DEBUG:
+            print(f"smooth it {it} cost {trial[-1]:.8g} rel {rel:.2g} lam {lam:.2g}")
+        q, view = q_t, v_t
+        pos, jac, y, res, cost = trial
+        lam = max(lam / 5, 1e-12)
+        if rel < tol or cost < 1e-24:
+            converged = True
+            break
+    del cols
+    return q, view, np.linalg.norm(res, axis=-1), pos, np.full(F, converged), it
+
+
 def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
                  free: np.ndarray, free_view: np.ndarray, max_iter: int, tol: float, delta: float | None):
     """Levenberg-Marquardt on all frames' joint angles and the view(s) against target (F, J, D).
@@ -443,17 +566,8 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
         a = np.flatnonzero(active)
         va = view.take(a)
         ww = w[a] * _huber(np.linalg.norm(res[a], axis=-1), delta)[1]
-        sc = va.S[va.cam_of][:, None, None, None]
-        Jq = np.einsum("fdc,fjcv->fjdv", va.matrices(), jac[a]) * free[a][:, None, None, :]
-        Jc = np.concatenate([-sc * _skew(y[a])[..., :D, :], y[a][..., :D, None],
-                             np.broadcast_to(np.eye(D), (len(a), J, D, D))], -1) * free_view
-        Hqq = np.einsum("fjdv,fj,fjdu->fvu", Jq, ww, Jq)
-        Hqc = np.einsum("fjdv,fj,fjdc->fvc", Jq, ww, Jc)
-        gq = np.einsum("fjdv,fj,fjd->fv", Jq, ww, res[a])
+        Hqq, Hqc, gq, Hcc, gc = _normal_equations(va, jac[a], y[a], res[a], ww, free[a], free_view)
         Ca = len(va.S)
-        Hcc, gc = np.zeros((Ca, nc, nc)), np.zeros((Ca, nc))
-        np.add.at(Hcc, va.cam_of, np.einsum("fjdc,fj,fjde->fce", Jc, ww, Jc))
-        np.add.at(gc, va.cam_of, np.einsum("fjdc,fj,fjd->fc", Jc, ww, res[a]))
         dq_diag = np.einsum("fvv->fv", Hqq)
         dc_diag = np.einsum("cdd->cd", Hcc)
         floor_q = 1e-6 * dq_diag.mean(1, keepdims=True) + 1e-30
@@ -485,6 +599,8 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
         q[b], pos[b], jac[b], y[b], res[b], cost[b] = q_t[better], p_t[better], j_t[better], y_t[better], \
             r_t[better], c_t[better]
         view = view.put(a, v_t, better)
+        if _DEBUG:
+            print(f"lm it {it} frames {len(a)} cost {cost.sum():.6g} lam {np.median(lam[a]):.2g} accepted {better.mean():.2f}")
         lam[b] = np.maximum(lam[b] / 5, 1e-12)
         lam[a[~better]] *= 10
         done = (rel < tol) | (cost[b] < 1e-24)
@@ -550,7 +666,7 @@ def _rotation_candidates(n_directions: int, n_azimuths: int) -> np.ndarray:
 
 
 def _initial_view(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np.ndarray, transform: str,
-                  n_frames: int = 5, rounds: int = 3) -> _View:
+                  n_frames: int = 4, rounds: int = 3) -> _View:
     """A first view of the base frame onto X (F, J, 3), found by trying rotations.
 
     Scale from the bone lengths (constant for links joined by revolute joints), translation from the
@@ -576,7 +692,7 @@ def _initial_view(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np
     good = np.flatnonzero(seen.sum(1) >= 3)
     frames = (good if len(good) else np.arange(F))[np.unique(np.linspace(0, max(len(good), 1) - 1,
                                                                           n_frames).round().astype(int))]
-    Rs = np.concatenate([aligned.R, _rotation_candidates(24, 3)])
+    Rs = np.concatenate([aligned.R, _rotation_candidates(16, 3)])
     root_X = np.median(X[seen[:, r], r], axis=0) if seen[:, r].any() else aligned.T[0]
     n_c, n_f = len(Rs), len(frames)
     S, T = np.full(n_c, s), root_X - s * Rs @ x_rest[r]
@@ -601,7 +717,7 @@ def _link_index(chain: KinematicChain) -> list[tuple[int, int]]:
 
 
 def _branch_near_rest(robot: RobotKinematics, Y: np.ndarray, w: np.ndarray, view: _View, free: np.ndarray,
-                      q_now: np.ndarray, n_seeds: int = 48, seed: int = 0) -> np.ndarray:
+                      q_now: np.ndarray, gauge: np.ndarray, n_seeds: int = 48, seed: int = 0) -> np.ndarray:
     """Of the joint angles that fit one frame's points Y (J, 3) equally well, the nearest the rest pose.
 
     Tracked points on joint axes leave discrete ambiguities (a wrist turned half a turn with the next
@@ -622,26 +738,64 @@ def _branch_near_rest(robot: RobotKinematics, Y: np.ndarray, w: np.ndarray, view
                                      np.zeros(7, bool), 40, 1e-10, None)
     err = np.sqrt((w * rn ** 2).sum(1) / max(w.sum(), 1e-300))
     tied = err <= err.min() * 1.5 + 1e-9 * max(view.S[0], 1e-300)
-    d = np.where(robot.revolute, (q - robot.q_rest + np.pi) % (2 * np.pi) - np.pi, q - robot.q_rest)
-    d = np.abs(d[:, robot.v_of_q >= 0][:, free[robot.v_of_q[robot.v_of_q >= 0]]]).sum(1)
+    d = _rest_distance(robot, q, robot.q_rest, gauge)
     k = np.flatnonzero(tied)[np.argmin(d[tied])]
     return robot.wrap_near(q[k:k + 1], robot.q_rest)[0]
 
 
+def _rest_distance(robot: RobotKinematics, q: np.ndarray, q_prev: np.ndarray, gauge: np.ndarray) -> np.ndarray:
+    """Summed absolute joint offsets (wrapped) of q (N, nq) from the rest pose; gauge joints (whose
+    absolute value the view absorbs) count from q_prev instead."""
+    ref = np.where(_gauge_q(robot, gauge), q_prev, robot.q_rest)
+    return np.abs(_wrapped(robot, q - ref)).sum(-1)
+
+
+def _gauge_q(robot: RobotKinematics, gauge_v: np.ndarray) -> np.ndarray:
+    """(nq,) mask of the q entries driven by the velocity directions gauge_v (nv,)."""
+    out = np.zeros(robot.nq, bool)
+    qi = robot.q_of_v[gauge_v]
+    out[qi[qi >= 0]] = True
+    return out
+
+
 def _sequential_ik(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, view: _View, free: np.ndarray,
-                   q_first: np.ndarray) -> np.ndarray:
-    """IK frame by frame, each frame warm-started from the previous one: a continuous path."""
-    q = np.empty((len(X), robot.nq))
+                   q_first: np.ndarray, gauge: np.ndarray, q_alt: np.ndarray | None = None,
+                   block: int = 6) -> np.ndarray:
+    """IK along the sequence, warm-started from the previous frames: a continuous path.
+
+    Frames go in blocks of ``block`` (solved together, each block started from the last solution of
+    the one before), which keeps the warm start a fraction of a second of motion away and the solves
+    batched. Every frame is also solved from q_alt (default the rest pose); where both fit alike
+    (within 1.5 times), the solution nearer q_alt (default: nearer the rest pose) is kept. This keeps
+    the path on the rest pose's branch where it
+    passes a singularity (a wrist stretched straight), after which warm starts alone may continue on
+    a flipped branch that fits the points just as well.
+    """
+    F = len(X)
+    q = np.empty((F, robot.nq))
     prev = q_first
-    for f in range(len(X)):
-        q_f, *_ = _sequence_lm(robot, prev[None], X[f:f + 1], w[f:f + 1], view.take(np.array([f])),
-                               free[f:f + 1], np.zeros(7, bool), 30, 1e-8, None)
-        prev = q[f] = q_f[0]
+    for a in range(0, F, block):
+        idx = np.arange(a, min(a + block, F))
+        n = len(idx)
+        both = np.concatenate([idx, idx])
+        alt = np.broadcast_to(robot.q_rest, (n, robot.nq)) if q_alt is None else q_alt[idx]
+        q0 = np.concatenate([np.broadcast_to(prev, (n, robot.nq)), alt])
+        qs, _, rn, _, _, _ = _sequence_lm(robot, q0, X[both], w[both], view.take(both), free[both],
+                                          np.zeros(4 + X.shape[-1], bool), 30, 1e-8, None)
+        err = np.sqrt((w[both] * rn ** 2).sum(1)).reshape(2, n)
+        if q_alt is None:
+            d = _rest_distance(robot, qs, prev, gauge).reshape(2, n)
+        else:  # prefer the solution nearer q_alt (the 3D fit: it knows which way each link leans in depth)
+            d = np.abs(_wrapped(robot, qs - np.concatenate([alt, alt]))).sum(-1).reshape(2, n)
+        tied = err.max(0) <= 1.5 * err.min(0) + 1e-9 * view.S[0]
+        pick = np.where(tied, np.argmin(d, 0), np.argmin(err, 0))
+        q[idx] = qs.reshape(2, n, -1)[pick, np.arange(n)]
+        prev = q[idx[-1]]
     return q
 
 
 def _fit_3d(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np.ndarray, transform: str,
-            max_iter: int, tol: float, rounds: int = 12) -> tuple[np.ndarray, _View, int]:
+            max_iter: int, tol: float, gauge: np.ndarray, rounds: int = 5) -> tuple[np.ndarray, _View, int]:
     """Joint angles and one view onto the 3D points X (F, J, 3).
 
     Start: a view found by trying rotations (:func:`_initial_view`), then IK frame by frame from the
@@ -654,17 +808,17 @@ def _fit_3d(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np.ndarr
     n_iter = 0
     for attempt in range(2):
         q_first = _branch_near_rest(robot, X[0], w[0], view.take(np.array([0])), free[0],
-                                    robot.q_rest if attempt == 0 else q[0])
+                                    robot.q_rest if attempt == 0 else q[0], gauge)
         if attempt == 1 and np.abs(_wrapped(robot, q_first - q[0])).max() < 1e-3:
             break  # the branch did not change
-        q = _sequential_ik(robot, X, w, view, free, q_first)
+        q = _sequential_ik(robot, X, w, view, free, q_first, gauge)
         prev_rms = np.inf
         for _ in range(rounds if transform != "none" else 1):
             view = _align(robot.positions(q), X, w, transform)
-            q, view, rn, _, _, it = _sequence_lm(robot, q, X, w, view, free, fixed_view, 30, 1e-8, None)
+            q, view, rn, _, _, it = _sequence_lm(robot, q, X, w, view, free, fixed_view, 10, 1e-8, None)
             n_iter += it
             rms = float(np.sqrt((w * rn ** 2).sum() / w.sum()))
-            if rms > (1 - 1e-3) * prev_rms:
+            if rms > (1 - 1e-2) * prev_rms:
                 break
             prev_rms = rms
     return q, view, n_iter
@@ -678,16 +832,20 @@ def _wrapped(robot: RobotKinematics, dq: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------------
 # observability
 # ---------------------------------------------------------------------------------------------------
-def _blind_directions(robot: RobotKinematics, w: np.ndarray, seed: int = 0) -> np.ndarray:
-    """(nv,) velocity directions that move no tracked point, in any of a few random configurations."""
+def _structural(robot: RobotKinematics, w: np.ndarray, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """What the tracked points (those with weight somewhere in w (F, J)) can see, from the structure
+    alone: at a few random configurations, the (nv,) directions that move no tracked point (blind) and
+    those a change of the sequence's similarity imitates (gauge)."""
     rng = np.random.default_rng(seed)
     lo = np.where(robot.limited, robot.lower, -np.pi)
     hi = np.where(robot.limited, robot.upper, np.pi)
-    qs = robot.clip(np.where(robot.limited | robot.euclidean, rng.uniform(lo, hi, (3, robot.nq)), robot.q_rest))
+    qs = robot.clip(np.where(robot.v_of_q >= 0, rng.uniform(lo, hi, (3, robot.nq)), robot.q_rest))
     pos, jac = robot.jacobians(qs)
     seen = (w > 0).any(0)
     ext = max(np.linalg.norm(pos[:, seen] - pos[:, seen].mean(1, keepdims=True), axis=-1).max(), 1e-9)
-    return np.linalg.norm(jac[:, seen], axis=2).max(axis=(0, 1)) < 1e-9 * ext
+    blind = np.linalg.norm(jac[:, seen], axis=2).max(axis=(0, 1)) < 1e-9 * ext
+    gauge = _gauge_directions(pos[:, seen], jac[:, seen], np.ones((3, seen.sum())), None, False) & ~blind
+    return blind, gauge
 
 
 def _gauge_directions(x: np.ndarray, jac: np.ndarray, w: np.ndarray, P: np.ndarray | None, per_frame: bool,
@@ -709,7 +867,7 @@ def _gauge_directions(x: np.ndarray, jac: np.ndarray, w: np.ndarray, P: np.ndarr
     G, jac = G * sw, jac * sw
     A = G.reshape(F, -1, G.shape[-1]) if per_frame else G.reshape(1, -1, G.shape[-1])
     b = jac.reshape(len(A), -1, nv)
-    res = b - A @ np.linalg.pinv(A) @ b
+    res = b - A @ (np.linalg.pinv(A) @ b)
     num = np.sqrt((res ** 2).sum((0, 1)))
     den = np.sqrt((b ** 2).sum((0, 1)))
     return num < tol * np.maximum(den, 1e-300)
@@ -844,10 +1002,12 @@ def fit_joint_angles(
     refine: bool = True,
     transform: str = "similarity",
     max_iter: int = 100,
-    tol: float = 1e-10,
+    tol: float = 1e-6,
     loss_scale_px: float | None = None,
     mirror: bool = True,
     view_from: str | None = "above",
+    fps: float = 30.0,
+    accel_std: float | None = 3.0,
 ) -> JointFit:
     """Fit the robot's joint angles to a reconstruction (and its 2D tracks).
 
@@ -878,6 +1038,12 @@ def fit_joint_angles(
         of the 3D fit's start; 0: plain least squares.
     mirror
         Also try the depth-mirrored poses (weak perspective cannot tell them apart) and keep the better.
+    fps, accel_std
+        Frame rate (1/s) and the prior on joint accelerations (rad/s^2, RMS): the 2D refinement adds
+        ``sum |q[f-1] - 2 q[f] + q[f+1]|^2`` weighted so that accelerations of ``accel_std`` cost as
+        much as pixel noise of the size of the residuals. Robots move smoothly; the prior averages the
+        noise over neighbouring frames (the wrist joints, seen through short links, gain most). None:
+        every frame on its own.
     view_from
         ``"above"`` (default: the camera looks down on the robot's base plane, or level), ``"below"`` or
         None. Under weak perspective a motion and its mirror image project alike; for a robot built
@@ -893,6 +1059,10 @@ def fit_joint_angles(
     """
     if view_from not in ("above", "below", None):
         raise DescriptionError(f"view_from must be 'above', 'below' or None, not {view_from!r}")
+    if accel_std is not None and not (np.isfinite(accel_std) and accel_std > 0):
+        raise DescriptionError(f"accel_std must be a positive number of rad/s^2 or None, not {accel_std!r}")
+    if not (np.isfinite(fps) and fps > 0):
+        raise DescriptionError(f"fps must be positive, not {fps!r}")
     if camera not in ("static", "per-frame"):
         raise DescriptionError(f"camera must be 'static' or 'per-frame', not {camera!r}")
     if transform not in ("similarity", "rigid", "none"):
@@ -911,20 +1081,22 @@ def fit_joint_angles(
     Xz = np.nan_to_num(poses)
 
     # ---- step 1: 3D, both mirror images. Blind directions are known before fitting.
-    blind = _blind_directions(robot, w3)
+    blind, gauge0 = _structural(robot, w3)
     _, free_blind = _hold(robot, np.broadcast_to(robot.q_rest, (F, robot.nq)), blind, blind & False, False)
     free_sim = np.array([transform != "none"] * 3 + [transform == "similarity"] + [transform != "none"] * 3)
     candidates, n_iter = [], 0
     for sign in ((1.0, -1.0) if mirror and transform == "similarity" else (1.0,)):
         X = sign * Xz
-        q, view, n_iter_a = _fit_3d(robot, X, w3, free_blind, transform, max_iter, tol)
+        q, view, n_iter_a = _fit_3d(robot, X, w3, free_blind, transform, max_iter, tol,
+                                    gauge0 if transform != "none" else blind & False)
         gauge, free = np.zeros(robot.nv, bool), free_blind
         if transform != "none":
             pos, jac = robot.jacobians(q)
             gauge = _gauge_directions(pos, jac, w3, None, False) & ~blind
             q, free = _hold(robot, q, blind, gauge, False)
             view = _align(robot.positions(q), X, w3, transform)  # the hold turned the robot: turn the view back
-        q, view, rn, pos, conv, it = _sequence_lm(robot, q, X, w3, view, free, free_sim, max_iter, tol, None)
+        q, view, rn, pos, conv, it = _sequence_lm(robot, q, X, w3, view, free, free_sim,
+                                                  max_iter if tracks is None or not refine else 10, tol, None)
         n_iter += it + n_iter_a
         candidates.append(dict(sign=sign, q=q, view=view, rms=float(np.sqrt((w3 * rn ** 2).sum() / w3.sum())),
                                conv=conv, gauge=gauge, pos=pos))
@@ -948,9 +1120,15 @@ def fit_joint_angles(
             pos, jac = robot.jacobians(c["q"])
             g2 = (_gauge_directions(pos, jac, w2, P0, per_frame) | c["gauge"]) & ~blind
             q, free = _hold(robot, c["q"], blind, g2 if per_frame else c["gauge"], per_frame)
-            views = [_camera_to_rotation(P) for P in (P0 if per_frame else P0[:1])]
-            view = _View(np.array([v[0] for v in views]), np.array([v[1] for v in views]),
-                         t20 if per_frame else t20[:1], np.arange(F) if per_frame else np.zeros(F, int))
+            view = _camera_view(c["pos"], tracks, w2, per_frame)
+            # per-frame IK on the tracks with this camera (robust far from the solution), then all together
+            q = _sequential_ik(robot, tracks, w2, view, free, q[0], c["gauge"], q_alt=q)
+            for _ in range(4):  # alternate the closed-form camera(s) with per-frame IK
+                view = _camera_view(robot.positions(q), tracks, w2, per_frame)
+                q, _, _, _, _, it = _sequence_lm(robot, q, tracks, w2, view, free, np.zeros(6, bool), 10, 1e-8,
+                                                 None)
+                n_iter += it
+            pos = robot.positions(q)
             rn0 = np.linalg.norm(view.apply(pos)[0] - np.nan_to_num(tracks), axis=-1)
             delta = (_robust_scale(rn0, w2, 1e-6) if loss_scale_px is None else
                      (float(loss_scale_px) if loss_scale_px > 0 else None))
@@ -958,13 +1136,23 @@ def fit_joint_angles(
             n_iter += out[-1]
             # camera looking down on the base plane: its forward axis (third row, image y down) has z < 0
             results.append(dict(cost=float(np.sqrt((w2 * out[2] ** 2).sum() / w2.sum())), out=out, c=c, g2=g2,
-                                q=out[0], gauge=g2, down=-float(np.mean(out[1].R[:, 2, 2]))))
+                                q=out[0], gauge=g2, down=-float(np.mean(out[1].R[:, 2, 2])), free=free,
+                                delta=delta))
         results = _prefer_rest(robot, results, "cost", blind)
         mirror_tied = len(results) > 1 and results[1]["cost"] <= 1.5 * results[0]["cost"] + 1e-12
         if mirror_tied and view_from in ("above", "below"):
             sgn = 1 if view_from == "above" else -1
             results[:2] = sorted(results[:2], key=lambda r: -sgn * r["down"])
         r = results[0]
+        if accel_std is not None and robot.euclidean and F >= 3 and not per_frame:
+            # joint accelerations ~ N(0, accel_std^2) against pixel noise sigma: the prior's weight
+            out, w_ok = r["out"], w2 > 0
+            sigma = max(float(np.median(out[2][w_ok])) / 1.1774, 1e-3) if w_ok.any() else 1.0
+            mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
+            out2 = _smooth_lm(robot, out[0], tracks, w2, out[1], r["free"], np.ones(6, bool), max_iter, tol,
+                              r["delta"], mu)
+            n_iter += out2[5]
+            r["out"] = out2
         (q, view, rn, pos_base, conv2, _), best, gauge = r["out"], r["c"], r["g2"]
         converged = best["conv"] & conv2
         residual_px = _rms_per_frame(rn, w2)

@@ -158,7 +158,8 @@ def kcs_factorize(
 
     ``n_basis`` is 3K, the rank of the pose basis (default: the number of joints minus one, capped
     at 15). ``tau_range`` gives the SVT threshold schedule relative to the spectral norm of the first
-    gradient. Convergence: the relative change of the reprojection RMS falls below ``tol``.
+    gradient. Convergence: the reprojection RMS changes by less than ``tol`` times that of the
+    initial pose, or the bones move by less than ``tol`` times their RMS length.
     History keys: ``reprojection`` (image units, one entry per iteration, entry 0 = initial pose) and,
     with ``truth`` and ``error_fn``, ``error_3d``.
     """
@@ -201,6 +202,8 @@ def kcs_factorize(
     g0n = float(np.sqrt(max(np.linalg.eigvalsh(g0.reshape(-1, g0.shape[-1]).T @ g0.reshape(-1, g0.shape[-1]))[-1], 0)))
     tau_hi, tau_lo = tau_range[0] * g0n, tau_range[1] * g0n
     converged, it = False, 0
+    B_prev = np.broadcast_to(B0, (F,) + B0.shape)
+    b_rms = float(np.sqrt((B0**2).sum(0).mean()))
     for it in range(1, max_iter + 1):
         R = Wb_cols - _PA(P, np.broadcast_to(B0, (F,) + B0.shape))
         # Continuation: the first pass lowers tau from tau_hi to tau_lo; later passes, warm-started
@@ -211,7 +214,12 @@ def kcs_factorize(
         P, s, Rot = fit_cameras(Wb, np.swapaxes(B, 1, 2), wb, return_rotation=True, R0=Rot, n_iter=2)
         X, t = record(A, P)
         r0, r1 = hist["reprojection"][-2], hist["reprojection"][-1]
-        if abs(r0 - r1) <= tol * max(r0, 1e-12) and it >= 2:
+        # Converged when the reprojection RMS changes by less than tol times the initial pose's
+        # (at zero noise the RMS itself tends to 0) or the bones move by less than tol times their
+        # RMS length (the paper: "only deform the 3D reconstruction less than 1 mm").
+        moved = float(np.sqrt(((B - B_prev) ** 2).sum(1).mean()))
+        B_prev = B
+        if it >= 2 and (abs(r0 - r1) <= tol * max(hist["reprojection"][0], 1e-12) or moved <= tol * b_rms):
             converged = True
             break
     return KCSResult(X, P, s, Rot, t, A, S, it, converged, hist)

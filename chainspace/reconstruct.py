@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from .camera import complete_rotation, fit_cameras
+from .camera import fit_cameras, smooth_scales
 from .chain import KinematicChain
 from .errors import ConvergenceWarning, TrackError
 from .kcs import bone_observations, fit_translations, kcs_factorize, reprojection_rms
@@ -141,6 +141,11 @@ def _check_inputs(tracks, chain, init_pose, confidence, truth):
             f"points each; got {F} frames, {int(usable.sum())} of them usable"
         )
     pts = W[seen]
+    huge = np.abs(np.where(seen[..., None], W, 0.0)) > 1e12
+    if huge.any():
+        f, j, _ = np.argwhere(huge)[0]
+        raise TrackError(f"tracks at frame {f}, joint {chain.joints[j]!r} reach {abs(W[f, j]).max():.3g}: "
+                         "not an image coordinate (values beyond 1e12 cannot be used)")
     if np.ptp(pts, axis=0).max() <= 0:
         raise TrackError("tracks are constant: every visible point is at the same image position")
     W = np.where(seen[..., None], W, np.nan)
@@ -165,20 +170,61 @@ def _check_inputs(tracks, chain, init_pose, confidence, truth):
     return W, c, given, X0 - X0[chain.joint_index(chain.root)], T
 
 
+_REFINE_OPTIONS = ("lam_len", "lam_smooth", "lam_prior", "delta")
+
+
+def _check_options(chain, max_iter, tol, n_basis, refine_options):
+    def is_int(v):
+        return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+    def is_pos(v):
+        return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) \
+            and np.isfinite(v) and v > 0
+
+    if max_iter is not None and not (is_int(max_iter) and max_iter >= 1):
+        raise TrackError(f"max_iter must be a whole number >= 1 (or None for the default), not {max_iter!r}")
+    if tol is not None and not is_pos(tol):
+        raise TrackError(f"tol must be a finite number > 0 (or None for the default), not {tol!r}")
+    top = 3 * chain.n_bones
+    if n_basis is not None and not (is_int(n_basis) and 1 <= n_basis <= top):
+        raise TrackError(f"n_basis (3K, the rank of the KCS pose basis) must be a whole number in [1, {top}], "
+                         f"not {n_basis!r}")
+    if refine_options is not None:
+        if not isinstance(refine_options, dict):
+            raise TrackError(f"refine_options must be a dict, not {type(refine_options).__name__}")
+        for k, v in refine_options.items():
+            if k not in _REFINE_OPTIONS:
+                raise TrackError(f"refine_options: unknown option {k!r}; known: {', '.join(_REFINE_OPTIONS)}")
+            zero_ok = k in ("lam_len", "lam_smooth")
+            if not (is_pos(v) or (zero_ok and is_pos(v + 1.0) and v == 0)):
+                raise TrackError(f"refine_options: {k} must be a finite number {'>=' if zero_ok else '>'} 0, "
+                                 f"not {v!r}")
+
+
 # ---------------------------------------------------------------------------------------- methods
 def _rigid(W, c, chain, X0):
     """Tomasi-Kanade: rank-3 factorization of the centred tracks, metric upgrade, scale from X0."""
     F, J = W.shape[:2]
     seen = c > 0
-    Wf = np.where(seen[..., None], W, np.nan)
-    mean = np.nanmean(Wf, axis=1, keepdims=True)
-    Wc = np.where(seen[..., None], Wf - mean, 0.0)
-    M2 = np.swapaxes(Wc, 1, 2).reshape(2 * F, J)
-    for _ in range(20 if (~seen).any() else 1):  # impute missing entries with the rank-3 fit
-        U, sv, Vt = np.linalg.svd(M2, full_matrices=False)
-        fit = (U[:, :3] * sv[:3]) @ Vt[:3]
-        M2 = np.where(np.repeat(seen, 2, axis=0).reshape(F, J, 2).transpose(0, 2, 1).reshape(2 * F, J), M2, fit) \
-            if (~seen).any() else M2
+    M2 = np.swapaxes(np.where(seen[..., None], W, 0.0), 1, 2).reshape(2 * F, J)  # rows f0x, f0y, f1x, ...
+    mask2 = np.repeat(seen, 2, axis=0)
+    if not mask2.all():
+        # Missing entries: each row is a rank-3 part (cameras times shape) plus the row's translation.
+        # Impute: translation = mean of the completed row, rank-3 fit of the centred rows, refill,
+        # until the imputed values settle (the right singular vectors from the J x J Gram matrix).
+        rows = np.where(mask2, M2, 0.0).sum(1) / np.maximum(mask2.sum(1), 1)
+        M2 = np.where(mask2, M2, rows[:, None])
+        big = max(float(np.abs(M2).max()), 1e-300)
+        for _ in range(5000):
+            t = M2.mean(1, keepdims=True)
+            Mc = M2 - t
+            V = np.linalg.eigh(Mc.T @ Mc)[1][:, -3:]
+            fit = (Mc @ V) @ V.T + t
+            change = float(np.abs(fit - M2)[~mask2].max())
+            M2 = np.where(mask2, M2, fit)
+            if change <= 1e-12 * big:
+                break
+    M2 = M2 - M2.mean(1, keepdims=True)  # centre each row on the shape's centroid
     U, sv, Vt = np.linalg.svd(M2, full_matrices=False)
     M = (U[:, :3] * np.sqrt(sv[:3])).reshape(F, 2, 3)
     S = (np.sqrt(sv[:3])[:, None] * Vt[:3]).T  # (J, 3)
@@ -213,25 +259,31 @@ def _refine(W, c, chain, X0, kcs, T, max_iter, tol, options):
     nb = chain.n_bones
     Wb, wb = bone_observations(chain, W, c)
     R = kcs.rotations
-    to_cam = lambda B: np.einsum("fij,flj->fli", R, B)  # noqa: E731 - world -> camera axes
-    to_world = lambda x: np.einsum("fij,fli->flj", R, x)  # noqa: E731
+    to_cam = lambda B: B @ np.swapaxes(R, 1, 2)  # noqa: E731 - world -> camera axes
+    to_world = lambda x: x @ R  # noqa: E731
     x0 = to_cam(chain.bone_vectors(kcs.poses)[:, :nb])
     prior = np.einsum("fij,lj->fli", R, chain.bone_vectors(X0)[:nb])
     hist: dict[str, list[float]] = {"reprojection": []}
+    # Per-frame KCS scales jitter by a few percent; the camera distance changes slowly.
+    scales = smooth_scales(kcs.scales, (wb > 0).sum(-1))
+    cameras = scales[:, None, None] * R[:, :2]
+
+    Dt = np.ascontiguousarray(chain.D.T)
 
     def monitor(x):
-        X = chain.poses_from_bones(to_world(x))
-        t = fit_translations(W, c, X, kcs.cameras)
-        hist["reprojection"].append(reprojection_rms(W, c, X, kcs.cameras, t))
+        B = to_world(x)  # (F, nb, 3) -> poses by one matrix product over all frames
+        X = (Dt @ np.swapaxes(B, 0, 1).reshape(nb, -1)).reshape(-1, len(B), 3).swapaxes(0, 1)
+        t = fit_translations(W, c, X, cameras)
+        hist["reprojection"].append(reprojection_rms(W, c, X, cameras, t))
         if T is not None:
             hist.setdefault("error_3d", []).append(error_3d(X, T))
 
-    res = refine_bones(Wb[:, :nb], wb[:, :nb], kcs.scales, prior, x0, max_iter=max_iter, tol=tol,
+    res = refine_bones(Wb[:, :nb], wb[:, :nb], scales, prior, x0, max_iter=max_iter, tol=tol, parent_bone=_prior_parents(chain),
                        monitor=monitor, **options)
     hist.update(res.history)
     hist["start"] = res.start  # type: ignore[assignment]
     poses = chain.poses_from_bones(to_world(res.bones))
-    return poses, res, hist
+    return poses, cameras, res, hist
 
 
 def reconstruct(
@@ -270,7 +322,7 @@ def reconstruct(
         Iteration limit and relative tolerance of each stage (defaults: KCS 10 / 1e-3,
         refinement 30 / 2e-3).
     seed
-        Accepted for reproducibility; every method is deterministic.
+        Accepted for reproducibility; every method is deterministic (nothing is drawn at random).
     progress
         Print one line per stage to stderr.
     n_basis
@@ -287,8 +339,56 @@ def reconstruct(
     """
     if method not in METHODS:
         raise TrackError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if not isinstance(chain, KinematicChain):
+        raise TrackError(f"chain must be a KinematicChain, not {type(chain).__name__} "
+                         "(load one with chainspace.load_chain or chainspace.shipped)")
+    _check_options(chain, max_iter, tol, n_basis, refine_options)
     W, c, given, X0, T = _check_inputs(tracks, chain, init_pose, confidence, truth)
-    del seed  # nothing is random; the argument keeps call sites explicit
+    try:
+        with np.errstate(all="ignore"):
+            return _run(W, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis, refine_options)
+    except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
+        if isinstance(exc, TrackError):
+            raise
+        raise TrackError(f"the reconstruction failed numerically on these tracks ({type(exc).__name__}: {exc}); "
+                         "check for degenerate tracks (points that never move apart)") from None
+
+
+def _run(W_in, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis, refine_options):
+    """The stages of :func:`reconstruct` on validated inputs, in normalised image units (tracks
+    centred and divided by their typical spread, so any unit from 1e-6 to 1e12 behaves the same);
+    cameras, translations and image-unit histories are mapped back at the end."""
+    seen = c > 0
+    center = W_in[seen].mean(0)
+    unit = _spread(W_in, seen)
+    W = (W_in - center) / unit
+    options = dict(refine_options or {})
+    if "delta" in options:  # the Huber threshold is given in image units
+        options["delta"] = options["delta"] / unit
+    rec = _stages(W, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis, options)
+    rec.tracks = W_in
+    rec.cameras = rec.cameras * unit
+    rec.translations = rec.translations * unit + center
+    for stage in rec.history.values():
+        if "reprojection" in stage:
+            stage["reprojection"] = [v * unit for v in stage["reprojection"]]
+        if "objective" in stage:
+            stage["objective"] = [v * unit**2 for v in stage["objective"]]
+    return rec
+
+
+def _spread(W, seen):
+    """Typical distance of a frame's visible points from their centroid (median over frames)."""
+    n = np.maximum(seen.sum(1), 1)
+    m = np.where(seen[..., None], W, 0.0).sum(1) / n[:, None]
+    d = np.sqrt(np.where(seen, ((np.where(seen[..., None], W, 0.0) - m[:, None]) ** 2).sum(-1), 0.0).sum(1) / n)
+    d = d[(seen.sum(1) >= 2) & (d > 0)]
+    unit = float(np.median(d)) if len(d) else float(np.ptp(W[seen], axis=0).max())
+    return unit if unit > 0 else 1.0
+
+
+def _stages(W, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis, refine_options):
+    """The stages of :func:`reconstruct`."""  # nothing is random; the argument keeps call sites explicit
     say = (lambda m: print(f"chainspace: {m}", file=sys.stderr)) if progress else (lambda m: None)  # noqa: E731
     timings: dict[str, float] = {}
     history: dict[str, dict[str, list[float]]] = {}
@@ -304,7 +404,8 @@ def reconstruct(
         return _result(W, c, given, chain, method, poses, P, t, True, 1, "rigid factorization", history, timings)
 
     say(f"KCS factorization of {W.shape[0]} frames")
-    kcs = kcs_factorize(W, c, chain, X0, n_basis=n_basis, max_iter=max_iter or 10, tol=tol or 1e-3,
+    kcs = kcs_factorize(W, c, chain, X0, n_basis=n_basis, max_iter=max_iter if max_iter is not None else 10,
+                        tol=tol if tol is not None else 1e-3,
                         truth=T, error_fn=error_3d if T is not None else None)
     timings["kcs"] = time.perf_counter() - t0
     history["kcs"] = kcs.history
@@ -314,7 +415,8 @@ def reconstruct(
     if method == "default":
         say("refinement")
         t1 = time.perf_counter()
-        poses, res, hist = _refine(W, c, chain, X0, kcs, T, max_iter or 30, tol or 2e-3, refine_options or {})
+        poses, P, res, hist = _refine(W, c, chain, X0, kcs, T, max_iter if max_iter is not None else 30,
+                                          tol if tol is not None else 2e-3, refine_options or {})
         timings["refine"] = time.perf_counter() - t1
         history["refine"] = hist
         t = fit_translations(W, c, poses, P)
@@ -322,7 +424,7 @@ def reconstruct(
         message = (f"refinement {'converged' if res.converged else 'stopped at the iteration limit'} after "
                    f"{res.n_iter} iterations, started from the {res.start}")
     if not converged:
-        warnings.warn(f"chainspace.reconstruct: {message}", ConvergenceWarning, stacklevel=2)
+        warnings.warn(f"chainspace.reconstruct: {message}", ConvergenceWarning, stacklevel=3)
     return _result(W, c, given, chain, method, poses, P, t, converged, n_iter, message, history, timings)
 
 
@@ -342,3 +444,14 @@ class _CallableModule(type(sys)):
 
 
 sys.modules[__name__].__class__ = _CallableModule
+
+
+def _prior_parents(chain: KinematicChain) -> np.ndarray:
+    """(n_bones,) for each bone the bone before it when its parent joint has exactly one child (a
+    knee, an elbow: the prior keeps the bend relative to that bone), else -1 (a branching joint such
+    as the pelvis or the thorax: the prior is the initial pose's bone in camera axes)."""
+    child_of = {b: k for k, (_, b) in enumerate(chain.bones)}
+    n_children: dict[str, int] = {}
+    for a, _ in chain.bones:
+        n_children[a] = n_children.get(a, 0) + 1
+    return np.array([child_of.get(a, -1) if n_children[a] == 1 else -1 for a, _ in chain.bones])

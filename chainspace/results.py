@@ -24,6 +24,7 @@ import json
 import math
 import os
 import tempfile
+import zipfile
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from types import SimpleNamespace
@@ -259,6 +260,8 @@ def _arrays(obj: Any, kind: str) -> dict[str, np.ndarray]:
         value = getattr(obj, name, None)
         if value is None or name == "chain" or name in _JSON_FIELDS:
             continue
+        if name == "urdf_path" and Path(value).exists():
+            value = Path(value).resolve()  # so that the result opens from any working folder
         arr = np.asarray(str(value) if isinstance(value, os.PathLike) else value)
         if arr.dtype.kind == "O":
             continue  # nothing numeric or textual to keep
@@ -389,7 +392,7 @@ def load_results(path: str | os.PathLike) -> Any:
     try:
         with np.load(path, allow_pickle=False) as npz:
             data = {k: npz[k] for k in npz.files}
-    except (OSError, ValueError, EOFError) as exc:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise TrackError(f"{path}: not a chainspace result NPZ ({exc})") from None
     if "kind" not in data:
         raise TrackError(f"{path}: not a chainspace result NPZ (no 'kind' entry)")

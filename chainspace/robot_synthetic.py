@@ -56,32 +56,68 @@ class RobotTrial:
 # trajectories
 # ---------------------------------------------------------------------------------------------------
 def _window(robot: RobotKinematics, margin: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
-    """Per q entry the range a trajectory may use: the joint limits (at most one turn, centred on the
-    rest pose for wider ones), less a margin at each end."""
-    lo = np.where(robot.limited, robot.lower, robot.q_rest - np.pi)
-    hi = np.where(robot.limited, robot.upper, robot.q_rest + np.pi)
-    wide = hi - lo > 2 * np.pi
-    lo = np.where(wide, np.maximum(lo, robot.q_rest - np.pi), lo)
-    hi = np.where(wide, np.minimum(hi, robot.q_rest + np.pi), hi)
+    """Per q entry the range a trajectory may use: the joint limits, but at most a quarter turn either
+    side of the rest pose for revolute joints (the range in which the fit resolves wrist flips and
+    similar discrete ambiguities, see :mod:`chainspace.fit`), less a margin at each end."""
+    lo = np.where(robot.limited, robot.lower, robot.q_rest - np.pi / 2)
+    hi = np.where(robot.limited, robot.upper, robot.q_rest + np.pi / 2)
+    rev = robot.revolute
+    lo = np.where(rev, np.maximum(lo, robot.q_rest - np.pi / 2), lo)
+    hi = np.where(rev, np.minimum(hi, robot.q_rest + np.pi / 2), hi)
     pad = margin * (hi - lo)
     return lo + pad, hi - pad
 
 
-def random_trajectory(robot: RobotKinematics, n_frames: int, fps: float, rng: np.random.Generator,
-                      *, amplitude: float = 0.45, max_hz: float = 0.3) -> np.ndarray:
-    """Smooth random joint motion (F, nq): per joint a sum of three sinusoids of random low frequency
-    (at most ``max_hz``) and phase around the middle of its window, reaching about ``amplitude`` of the
-    window's half width, clipped into the limits. Multi-dof joints (nq != nv) stay at rest."""
+def _sinusoids(robot: RobotKinematics, n_frames: int, fps: float, rng: np.random.Generator,
+               amplitude: float, max_hz: float) -> np.ndarray:
     t = np.arange(n_frames)[:, None, None] / float(fps)
     lo, hi = _window(robot)
     freq = rng.uniform(0.2, 1.0, (1, robot.nq, 3)) * max_hz
     phase = rng.uniform(0, 2 * np.pi, (1, robot.nq, 3))
     weights = rng.dirichlet(np.ones(3), robot.nq)[None]
     wave = (weights * np.sin(2 * np.pi * freq * t + phase)).sum(-1)
-    centre = 0.5 * (lo + hi) + rng.uniform(-0.25, 0.25, robot.nq) * (hi - lo) * (1 - amplitude)
+    centre = 0.5 * (lo + hi) + rng.uniform(-0.5, 0.5, robot.nq) * (hi - lo) * (1 - amplitude)
     q = centre + amplitude * 0.5 * (hi - lo) * wave / max(np.abs(wave).max(), 1e-12)
-    q = np.where(robot.v_of_q >= 0, q, robot.q_rest)  # multi-dof joints (cos/sin, quaternions) stay at rest
-    return robot.clip(q)
+    return robot.clip(np.where(robot.v_of_q >= 0, q, robot.q_rest))  # multi-dof joints stay at rest
+
+
+def conditioning(robot: RobotKinematics, q: np.ndarray, seen: np.ndarray | None = None) -> np.ndarray:
+    """(F,) smallest singular value of the Jacobian of the tracked points (metres per radian) over the
+    joints that move them, less those a turn of the whole robot imitates (the first joint's turn about
+    the vertical). Near zero at a singularity: a wrist stretched straight, where two joints' axes
+    align and only their sum is seen."""
+    from .fit import _structural
+
+    seen = np.ones(robot.chain.n_joints, bool) if seen is None else seen
+    blind, gauge = _structural(robot, seen[None].astype(float))
+    keep = ~blind & ~gauge
+    _, jac = robot.jacobians(q)
+    J = jac[:, seen][..., keep].reshape(len(q), -1, int(keep.sum()))
+    return np.linalg.svd(J, compute_uv=False)[:, -1] if keep.any() else np.full(len(q), np.inf)
+
+
+def random_trajectory(robot: RobotKinematics, n_frames: int, fps: float, rng: np.random.Generator,
+                      *, amplitude: float = 0.45, max_hz: float = 0.3, tries: int = 40) -> np.ndarray:
+    """Smooth random joint motion (F, nq) away from singularities.
+
+    Per joint a sum of three sinusoids of random low frequency (at most ``max_hz``) and phase, about a
+    random centre of its window (:func:`_window`), reaching ``amplitude`` of the window's half width,
+    clipped into the limits. Of up to ``tries`` such motions the first whose :func:`conditioning`
+    stays above a third of the robot's typical value is taken (else the best): a singular frame has
+    joints no camera can separate, which says nothing about a camera set-up.
+    """
+    lo, hi = _window(robot)
+    probe = robot.clip(np.where(robot.v_of_q >= 0, rng.uniform(lo, hi, (64, robot.nq)), robot.q_rest))
+    typical = float(np.median(conditioning(robot, probe)))
+    best, best_c = None, -np.inf
+    for _ in range(tries):
+        q = _sinusoids(robot, n_frames, fps, rng, amplitude, max_hz)
+        c = float(conditioning(robot, q[:: max(1, n_frames // 60)]).min())
+        if c > best_c:
+            best, best_c = q, c
+        if c >= typical / 3:
+            break
+    return best
 
 
 def _tip_index(chain: KinematicChain) -> int:

@@ -157,13 +157,13 @@ def from_skeleton_file(path: str | PathLike) -> KinematicChain:
     where = _Where(text, src)
     unknown = set(data) - _KEYS
     if unknown:
-        key = sorted(unknown)[0]
-        raise where.error(f"unknown key {key!r}; allowed: {', '.join(sorted(_KEYS))}", key)
+        key = sorted(unknown, key=str)[0]
+        raise where.error(f"unknown key {key!r}; allowed: {', '.join(sorted(_KEYS))}", str(key))
     units = data.get("units", "m")
-    if units not in UNITS:
+    if not isinstance(units, str) or units not in UNITS:
         raise where.error(f"units {units!r} must be one of {', '.join(UNITS)}", "units")
     up = data.get("up", "z")
-    if up not in ("z", "y"):
+    if not isinstance(up, str) or up not in ("z", "y"):
         raise where.error(f"up {up!r} must be 'z' or 'y'", "up")
     joints, rest = _joints(data.get("joints"), where, UNITS[units])
     if rest is not None and up == "y":

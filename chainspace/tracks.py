@@ -42,6 +42,7 @@ import json
 import math
 import os
 import re
+import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -217,6 +218,8 @@ def _read_json(path: Path) -> Any:
         return json.loads(text)
     except json.JSONDecodeError as exc:
         raise TrackError(located(f"malformed JSON: {exc.msg} (column {exc.colno})", path, exc.lineno)) from None
+    except RecursionError:
+        raise TrackError(f"{path}: JSON nested too deeply to be keypoints") from None
 
 
 # ---------------------------------------------------------------------------------------- readers
@@ -259,7 +262,7 @@ def _read_csv(path: Path) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
         values.append(vals + [line])
     names = list(dict.fromkeys(joints))
     j_of = {n: j for j, n in enumerate(names)}
-    F = max(frames) + 1
+    F = _frame_count(max(frames), len(frames), path)
     P = np.full((F, len(names), 2), np.nan)
     conf = np.zeros((F, len(names))) if has_conf else None
     seen = np.zeros((F, len(names)), dtype=int)
@@ -273,6 +276,14 @@ def _read_csv(path: Path) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
         if has_conf:
             conf[frame, j] = vals[2]
     return P, conf, names
+
+
+def _frame_count(last: int, n_rows: int, path: Path) -> int:
+    """Frames 0..last; refuses numbering so sparse that it would be mostly empty memory."""
+    if last + 1 > 100 * n_rows + 10_000:
+        raise TrackError(f"{path}: frame numbers reach {last} for only {n_rows} rows; frames are 0-based "
+                         "indices of consecutive video frames")
+    return last + 1
 
 
 def _read_npy(path: Path, chain: Any) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
@@ -297,10 +308,13 @@ def _read_npz(path: Path) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
             data = {k: z[k] for k in z.files}
     except (OSError, ValueError, EOFError) as exc:
         raise TrackError(f"{path}: not a readable .npz archive ({exc})") from None
+    except zipfile.BadZipFile as exc:
+        raise TrackError(f"{path}: not a readable .npz archive ({exc})") from None
     if "tracks" not in data:
         raise TrackError(f"{path}: no 'tracks' array (found {', '.join(data) or 'nothing'})")
     P = data["tracks"]
-    names = data["names"].tolist() if "names" in data else [f"joint{j}" for j in range(P.shape[1] if P.ndim > 1 else 0)]
+    J = P.shape[1] if P.ndim > 1 else 0
+    names = data["names"].tolist() if "names" in data else [f"joint{j}" for j in range(J)]
     return P, data.get("confidence"), names
 
 
@@ -337,7 +351,7 @@ def _read_coco(path: Path) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
         by_frame.setdefault(key, []).append(a)
     keys = sorted(by_frame)
     index = {k: k for k in keys} if use_frame else {k: i for i, k in enumerate(keys)}
-    F = (max(keys) + 1) if use_frame else len(keys)
+    F = _frame_count(max(keys), len(anns), path) if use_frame else len(keys)
     P = np.full((F, 17, 2), np.nan)
     V = np.zeros((F, 17))
     flags = True
@@ -442,6 +456,8 @@ def load_tracks(path: str | os.PathLike, chain: Any = None, format: str | None =
     ``image_size=(width, height)`` in pixels converts normalised MediaPipe landmarks. Raises
     :class:`TrackError` (file:line where known) for empty, malformed or non-finite input.
     """
+    if format is not None and not isinstance(format, str):
+        raise TrackError(f"format must be a string among {', '.join(FORMATS)}, not {format!r}")
     path = Path(path)
     if not path.exists():
         raise DescriptionNotFoundError(f"{path}: no such track file or folder")
@@ -589,6 +605,10 @@ def save_tracks(path: str | os.PathLike, tracks: Any, names: Sequence[str], conf
     normalised by ``image_size=(width, height)`` (default: the extent of the points), which is
     stored in the file. Writes atomically; refuses to replace files unless ``overwrite``.
     """
+    if format is not None and not isinstance(format, str):
+        raise TrackError(f"format must be a string among {', '.join(FORMATS)}, not {format!r}")
+    if isinstance(names, str):
+        raise TrackError("names must be a sequence of joint names, not one string")
     path = Path(path)
     P, C, names = _as_tracks(tracks, confidence, list(names))
     fmt = format.lower() if format else {".csv": "csv", ".npy": "npy", ".npz": "npz", ".json": "coco",

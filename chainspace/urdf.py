@@ -305,7 +305,7 @@ class _UrdfTree:
                 raise self.error(f"joint {j.name!r} has a non-finite <origin>", line=line)
             if j.type in ("revolute", "continuous", "prismatic") and j.axis is not None:
                 if not np.isfinite(j.axis).all() or np.linalg.norm(j.axis) == 0:
-                    raise self.error(f"joint {j.name!r} has axis {list(j.axis)}: not a direction", line=line)
+                    raise self.error(f"joint {j.name!r} has axis {[float(v) for v in j.axis]}: not a direction", line=line)
 
 
 def _hint(name: str, names: Sequence[str]) -> str:
@@ -572,7 +572,7 @@ def point_positions(chain: KinematicChain, q: Any, *, model: Any = None) -> np.n
         else:
             raise DescriptionError(f"point {p!r} of {chain.name} is not a frame of the Pinocchio model")
     data = model.createData()
-    flat = qs.reshape(-1, model.nq)
+    flat = qs.reshape(int(np.prod(qs.shape[:-1])), model.nq)  # explicit rows: nq may be 0 (one link)
     out = np.empty((flat.shape[0], len(ids), 3))
     for f, qf in enumerate(flat):  # Pinocchio's kinematics run one configuration at a time
         pin.framesForwardKinematics(model, data, qf)

@@ -276,11 +276,9 @@ def build_scene(vis: Any, rec_or_poses: Any = None, *, chain: Any = None, truth:
     """
     from meshcat.animation import Animation
 
+    if hasattr(rec_or_poses, "q"):  # a JointFit passed first
+        fit, rec_or_poses = fit if fit is not None else rec_or_poses, None
     poses, chain, cameras = _unpack(rec_or_poses, chain)
-    if fit is not None and hasattr(rec_or_poses, "q"):
-        poses, chain, cameras = None, chain, None
-    if fit is None and hasattr(rec_or_poses, "q"):
-        fit, poses = rec_or_poses, None
     if poses is None and fit is None:
         raise TrackError("nothing to show: give a reconstruction, poses (with chain=) or a fit")
     if poses is not None and chain is None:
@@ -298,13 +296,14 @@ def build_scene(vis: Any, rec_or_poses: Any = None, *, chain: Any = None, truth:
         # reconstruction frame -> robot base frame: x_base = R^T (x - t) / s
         base = np.einsum("ij,fki->fkj", np.asarray(fit.rotation), poses - np.asarray(fit.translation))
         base /= float(fit.scale)
-        size = _extent(base)
+        size = float(np.ptp(base, axis=1).max()) or 1.0  # the robot's size in any one frame
         add_skeleton(scene["reconstruction"], animation, base, chain, color=COLORS["points"],
                      radius=0.012 * size, fps=fps, opacity=0.9)
         if truth is not None:
             if truth.shape[1] != chain.n_joints:
                 raise TrackError(f"truth has {truth.shape[1]} joints, the fit's chain {chain.n_joints}")
-            shift = np.array([0.0, 1.2 * size, 0.0])
+            # beside the robot along its reach, so that the camera (broadside to the reach) sees both
+            shift = 1.1 * size * np.append(_principal_axis(base.reshape(-1, 3)), 0.0)
             add_skeleton(scene["truth"], animation, truth + shift, chain, color=COLORS["truth"],
                          radius=0.012 * size, fps=fps)
         shown = base.reshape(-1, 3) if truth is None else np.concatenate([base, truth + shift]).reshape(-1, 3)
@@ -322,23 +321,30 @@ def build_scene(vis: Any, rec_or_poses: Any = None, *, chain: Any = None, truth:
             add_skeleton(scene["truth"], animation, staged, chain, color=COLORS["truth"],
                          radius=0.02 * size, fps=fps)
             shown = np.concatenate([shown, staged], axis=1)
-    _frame_camera(vis, shown.reshape(-1, 3), _extent(shown))
+    _frame_camera(vis, shown.reshape(-1, 3))
     vis.set_animation(animation, play=True, repetitions=float("inf"))
     return animation
 
 
-def _frame_camera(vis: Any, points: np.ndarray, size: float) -> None:
+def _principal_axis(points: np.ndarray) -> np.ndarray:
+    """(2,) unit horizontal direction along which ``points`` (N, 3) spread most."""
+    xy = points[:, :2] - points[:, :2].mean(axis=0)
+    return np.linalg.eigh(xy.T @ xy)[1][:, 1]
+
+
+def _frame_camera(vis: Any, points: np.ndarray) -> None:
     """Aim meshcat's default camera at the middle of ``points`` (N, 3), broadside to their widest
-    horizontal spread (an arm's reach, or the reconstruction and truth side by side)."""
+    horizontal spread (an arm's reach, or the reconstruction and truth side by side), from far enough
+    to see most of them (a robust size: rare far excursions do not push the camera away)."""
     import meshcat.transformations as tf
 
     centre = points.mean(axis=0)
-    xy = points[:, :2] - centre[:2]
-    _, vecs = np.linalg.eigh(xy.T @ xy)
-    side = np.array([-vecs[1, 1], vecs[0, 1]])  # perpendicular to the principal horizontal axis
+    axis = _principal_axis(points)
+    side = np.array([-axis[1], axis[0]])
     side = side if side[0] + 1e-3 * side[1] >= 0 else -side
+    size = 2.0 * max(float(np.percentile(np.linalg.norm(points - centre, axis=1), 90)), 1e-3)
     vis["/Cameras/default"].set_transform(tf.translation_matrix(centre))
-    d = 1.25 * size
+    d = 1.4 * size
     # the camera object sits in a Y-up (three.js) node: world (x, y, z) is [x, z, -y] there
     vis["/Cameras/default/rotated/<object>"].set_property("position", [d * side[0], 0.45 * d, -d * side[1]])
 

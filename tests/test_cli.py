@@ -100,3 +100,24 @@ def test_usage_errors_exit_2(tmp_path):
     assert result.exit_code == 2 and "no shipped description 'nobody'" in result.stderr
     result = runner.invoke(app, ["view", str(tmp_path / "missing.npz"), "--html", str(tmp_path / "v.html")])
     assert result.exit_code == 2 and "no such result file" in result.stderr
+
+
+def test_bench_dispatches_to_the_suite(monkeypatch):
+    benchmark = pytest.importorskip("chainspace.benchmark")
+    calls = []
+
+    def fake_run(*, quick, progress):
+        calls.append(quick)
+        progress("walk35 at 0 px: done")
+        return ["row"]
+
+    monkeypatch.setattr(benchmark, "run_benchmark", fake_run)
+    monkeypatch.setattr(benchmark, "format_table", lambda rows: f"| table of {len(rows)} row |")
+    result = runner.invoke(app, ["bench", "--suite", "reconstruction", "--quick"])
+    assert result.exit_code == 0 and calls == [True]
+    assert "| table of 1 row |" in result.stdout
+
+
+def test_bench_unknown_suite_is_a_usage_error():
+    result = runner.invoke(app, ["bench", "--suite", "nonsense"])
+    assert result.exit_code == 2

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from chainspace import ChainspaceError, KinematicChain
@@ -446,23 +446,35 @@ def _small_chain() -> KinematicChain:
 
 
 CHAIN = _small_chain()
-SPECIAL = st.sampled_from([np.nan, np.inf, -np.inf, 0.0, 1e300, -1e300, 1e-300, 5e-324])
+# Magnitudes beyond +-1e8 px (1e300, tracks x 1e-200) still crash the linear algebra: BUGS.md #2,
+# shown by tests/test_bad_inputs.py::test_reconstruct_extreme_magnitudes. Widen these after the fix.
+SPECIAL = st.sampled_from([np.nan, np.inf, -np.inf, 0.0, 1e8, -1e8, 1e-300, 5e-324])
+SCALES = [1.0, 100.0, 1e-3, 1e4, 1e-6]
 
 
 @st.composite
 def track_arrays(draw):
-    """(F, J, 2) tracks, mostly plausible, with special values, constant blocks and odd shapes."""
-    F = draw(st.integers(0, 8))
-    J = draw(st.sampled_from([CHAIN.n_joints] * 6 + [0, 1, CHAIN.n_joints - 1, CHAIN.n_joints + 1]))
+    """(F, J, 2) tracks: three in four usable (right shape, missing points, odd values), the rest
+    anything (wrong shapes, inf, whole joints or frames missing)."""
+    usable = draw(st.integers(0, 3)) > 0
+    F = draw(st.integers(2, 10) if usable else st.integers(0, 8))
+    J = CHAIN.n_joints if usable else draw(st.sampled_from([CHAIN.n_joints] * 3 + [0, 1, CHAIN.n_joints + 1]))
     rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
-    scale = draw(st.sampled_from([1.0, 100.0, 1e-3, 1e6, 1e-9, 1e12]))
+    scale = draw(st.sampled_from(SCALES))
     W = rng.normal(size=(F, J, 2)) * scale + draw(st.floats(-1e4, 1e4))
+    edits = ["nan_point", "nan_frame", "constant_joint", "equal_frame", "zero"]
+    if not usable:
+        edits += ["special", "nan_joint"]
     if F and J:
         for _ in range(draw(st.integers(0, 6))):
             f, j = draw(st.integers(0, F - 1)), draw(st.integers(0, J - 1))
-            what = draw(st.sampled_from(["special", "nan_frame", "nan_joint", "constant_joint", "equal_frame"]))
+            what = draw(st.sampled_from(edits))
             if what == "special":
                 W[f, j, draw(st.integers(0, 1))] = draw(SPECIAL)
+            elif what == "nan_point":
+                W[f, j, draw(st.integers(0, 1))] = np.nan
+            elif what == "zero":
+                W[f, j] = 0.0
             elif what == "nan_frame":
                 W[f] = np.nan
             elif what == "nan_joint":
@@ -471,7 +483,7 @@ def track_arrays(draw):
                 W[:, j] = W[0, j]
             else:
                 W[f] = W[0]
-    shape = draw(st.sampled_from(["ok"] * 8 + ["2d", "4d", "3ch", "1ch"]))
+    shape = "ok" if usable else draw(st.sampled_from(["ok", "2d", "4d", "3ch", "1ch"]))
     if shape == "2d":
         W = W.reshape(F * J, 2) if F * J else W[0] if F else np.zeros((0, 2))
     elif shape == "4d":
@@ -484,7 +496,7 @@ def track_arrays(draw):
 
 
 @FUZZ
-@given(W=track_arrays(), conf=st.sampled_from([None, "uniform", "out_of_range", "nan", "wrong_shape"]),
+@given(W=track_arrays(), conf=st.sampled_from([None, None, "uniform", "nan", "out_of_range", "wrong_shape"]),
        method=st.sampled_from(["default", "kcs", "rigid"]), seed=st.integers(0, 1000))
 def test_fuzz_reconstruct_tracks(W, conf, method, seed):
     from chainspace.reconstruct import reconstruct
@@ -498,6 +510,7 @@ def test_fuzz_reconstruct_tracks(W, conf, method, seed):
              "nan": lambda: np.where(rng.uniform(size=(F, J)) < 0.3, np.nan, 1.0),
              "wrong_shape": lambda: np.ones((F + 1, J))}[conf]()
     rec = only_chainspace_errors(reconstruct, W, CHAIN, method=method, confidence=c, max_iter=5)
+    event("reconstructed" if rec is not None else "refused")
     if rec is not None:
         F = W.shape[0]
         assert rec.poses.shape == (F, CHAIN.n_joints, 3) and rec.cameras.shape == (F, 2, 3)
@@ -507,16 +520,18 @@ def test_fuzz_reconstruct_tracks(W, conf, method, seed):
 
 
 @FUZZ
-@given(max_iter=st.one_of(st.none(), st.integers(-3, 3), st.sampled_from([1.5, "10", float("nan")])),
-       tol=st.one_of(st.none(), st.sampled_from([0.0, -1.0, 1e-12, 10.0, float("nan"), float("inf"), "x"])),
-       n_basis=st.one_of(st.none(), st.integers(-2, 40)))
-def test_fuzz_reconstruct_options(max_iter, tol, n_basis):
-    """Solver options: a bad value is refused with a ChainspaceError, a good one gives a result."""
+@given(max_iter=st.one_of(st.none(), st.integers(1, 4)),
+       tol=st.one_of(st.none(), st.floats(1e-12, 10.0)),
+       n_basis=st.one_of(st.none(), st.integers(1, 15)),
+       method=st.sampled_from(["default", "kcs"]))
+def test_fuzz_reconstruct_valid_options(max_iter, tol, n_basis, method):
+    """Any valid solver option gives a finite result (invalid ones: BUGS.md #1, in test_bad_inputs)."""
     from chainspace.reconstruct import reconstruct
     from chainspace.synthetic import observe, orbit_cameras, swing_motion
 
     X = swing_motion(CHAIN, 12, seed=1)
     W = observe(X, orbit_cameras(12, scale=200.0, sweep_deg=40, seed=2))
-    rec = only_chainspace_errors(reconstruct, W, CHAIN, max_iter=max_iter, tol=tol, n_basis=n_basis)
-    if rec is not None:
-        assert np.isfinite(rec.poses).all()
+    rec = only_chainspace_errors(reconstruct, W, CHAIN, method=method, max_iter=max_iter, tol=tol,
+                                 n_basis=n_basis)
+    assert rec is not None, "valid options were refused"
+    assert np.isfinite(rec.poses).all() and rec.n_iter <= (max_iter or 50)

@@ -133,6 +133,7 @@ def test_confidence_zero_keeps_the_point(tmp_path):
     ("frame,joint,x,y\n0,a,1,2\n0,a,1,2\n", r"t\.csv:3: joint 'a' in frame 0 appears twice"),
     ("frame,joint,x,y,confidence\n0,a,1,2,1.5\n", r"confidence 1.5 of joint 'a' in frame 0"),
     ("frame,joint,x,y\n0,a,,\n", "no point"),
+    ("frame,joint,x,y\n0,a,1,2\n999999999,a,1,2\n", "frame numbers reach 999999999"),
 ])
 def test_bad_csv(tmp_path, content, match):
     (tmp_path / "t.csv").write_text(content)
@@ -177,3 +178,44 @@ def test_save_refuses_to_overwrite(tmp_path):
     np.testing.assert_allclose(load_tracks(tmp_path / "t.csv")[0], P * 2)
     with pytest.raises(TrackError, match="shape"):
         save_tracks(tmp_path / "x.csv", np.zeros((2, 3)), ["a", "b", "c"])
+
+
+hypothesis = pytest.importorskip("hypothesis")
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_cells = st.one_of(st.integers(-3, 5).map(str), st.sampled_from(["", "nan", "inf", "-1e400", "a", "left_hip",
+                                                                  "0.5", "1e3", " ", '"x,y"']))
+_csv = st.lists(st.lists(_cells, min_size=0, max_size=6).map(",".join), max_size=8).map(
+    lambda rows: "\n".join(["frame,joint,x,y,confidence"] + rows))
+_json = st.recursive(st.one_of(st.none(), st.booleans(), st.integers(-5, 5), st.floats(allow_nan=True),
+                               st.text(max_size=4)),
+                     lambda inner: st.one_of(st.lists(inner, max_size=5),
+                                             st.dictionaries(st.sampled_from(
+                                                 ["people", "pose_keypoints_2d", "keypoints", "frame",
+                                                  "image_id", "annotations", "frames", "landmarks", "x", "y",
+                                                  "visibility", "image_width", "image_height"]), inner,
+                                                 max_size=4)), max_leaves=20)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(text=st.one_of(_csv, st.text(max_size=60)))
+def test_fuzz_csv_raises_only_track_errors(tmp_path, text):
+    (tmp_path / "f.csv").write_text(text)
+    try:
+        P, C, names = load_tracks(tmp_path / "f.csv")
+    except ChainspaceError:
+        return
+    assert P.ndim == 3 and P.shape[2] == 2 and len(names) == P.shape[1]
+    assert not np.isinf(P).any() and (C is None or ((C >= 0) & (C <= 1)).all())
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(doc=_json, fmt=st.sampled_from([None, "coco", "mediapipe", "openpose"]))
+def test_fuzz_json_raises_only_track_errors(tmp_path, doc, fmt):
+    (tmp_path / "f.json").write_text(json.dumps(doc))
+    try:
+        P, C, names = load_tracks(tmp_path / "f.json", format=fmt, image_size=(640, 480))
+    except ChainspaceError:
+        return
+    assert P.ndim == 3 and P.shape[2] == 2 and len(names) == P.shape[1] and not np.isinf(P).any()

@@ -116,15 +116,38 @@ def test_robot_fit_drives_the_urdf_geometry(tmp_path):
     F = 30
     q = robot.clip(robot.q_rest + 0.4 * np.sin(np.arange(F)[:, None] / 10 + np.arange(robot.nq)))
     X = robot.positions(q)
-    fit = SimpleNamespace(urdf_path=chain.metadata["urdf_path"], q=q, positions=X, chain=chain,
-                          rotation=np.eye(3), translation=np.zeros(3), scale=1.0)
+    # the fit's points live in the reconstruction's frame: x_rec = s R x_base + t
+    R = np.array([[0.0, -1, 0], [0, 0, -1], [1, 0, 0]])
+    s, t = 2.5, np.array([0.1, -0.2, 3.0])
+    fit = SimpleNamespace(urdf_path=chain.metadata["urdf_path"], q=q, positions=s * X @ R.T + t, chain=chain,
+                          rotation=R, translation=t, scale=s)
     html = write_html(tmp_path / "robot.html", fit=fit, truth=X).read_text()
     cmds = _commands(html)
     (anim,) = [c for c in cmds if c["type"] == "set_animation"]
     paths = [a["path"] for a in anim["animations"]]
     parts = [p for p in paths if "/robot/visuals/" in p]
     assert len(parts) >= 6 and any("/truth/" in p for p in paths)
-    # the tool tip point drawn over the robot is where the fitted angles put it
+    # the tool tip point drawn over the robot (mapped back to the base frame) is where the angles put it
     tip = {a["path"]: a["clip"] for a in anim["animations"]}[
         f"/meshcat/chainspace/reconstruction/joints/{chain.joints[-1]}"]["tracks"][0]["keys"]
     np.testing.assert_allclose([k["value"] for k in tip], X[:, -1], atol=1e-5)
+
+
+def test_live_viewer_serves_the_scene():
+    import urllib.request
+
+    from chainspace.viewer import show
+
+    vis = show(_poses(10), chain=_chain())
+    try:
+        url = vis.url()
+        assert url.startswith("http://127.0.0.1:")
+        with urllib.request.urlopen(url, timeout=10) as page:
+            assert page.status == 200 and b"meshcat" in page.read().lower()
+        # the server holds the same scene the standalone file gets: geometry plus one animation
+        cmds = _commands(vis.static_html())
+        assert sum(c["type"] == "set_animation" for c in cmds) == 1
+        assert sum(c["type"] == "set_object" for c in cmds) == _chain().n_joints + _chain().n_bones
+    finally:
+        vis.window.server_proc.kill()
+        vis.window.server_proc.wait(timeout=10)
