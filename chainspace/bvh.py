@@ -21,9 +21,7 @@ Conventions (as in bvhio and most BVH tools)
 
 from __future__ import annotations
 
-import os
 import re
-import tempfile
 import warnings
 from dataclasses import dataclass
 from os import PathLike
@@ -35,6 +33,7 @@ from scipy.spatial.transform import Rotation
 
 from .chain import KinematicChain
 from .errors import DescriptionError, DescriptionNotFoundError, OutputExistsError, TrackError, located
+from .results import atomic_write
 
 __all__ = ["from_bvh", "load_bvh", "save_bvh"]
 
@@ -360,15 +359,8 @@ def save_bvh(
     if p.exists() and not overwrite:
         raise OutputExistsError(f"{p}: exists; pass overwrite=True to replace it")
     text = _bvh_text(chain, X / scale, fps)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_write(p, "w", overwrite) as fh:
+        fh.write(text)
     return p
 
 

@@ -383,7 +383,7 @@ def bench(
                     f"(chainspace.{module}.{run_name})", EXIT_BAD_INPUT) from None
     console = _console()
     with console.status(f"running the {suite.value} benchmark{' (quick)' if quick else ''}") as status:
-        rows = run(quick=quick, progress=lambda m: (console.log(m, markup=False), status.update(m)))
+        rows = run(quick=quick, progress=lambda m: (console.print(m, markup=False), status.update(m)))
     typer.echo(fmt(rows))
 
 
@@ -400,12 +400,19 @@ def demo(
     standalone HTML viewer (viewer.html). Exit code 1 if validation failed."""
     from .demo import run_demo
 
-    summary = run_demo(out, overwrite=overwrite, progress=True, seed=seed)
-    for p in _demo_extras(out, summary, overwrite):
-        _say(f"wrote {p}")
-    for key in ("message", "table"):
-        if isinstance(summary.get(key), str):
-            typer.echo(summary[key])
+    console = _console()
+    with console.status("running the demo") as status:
+        def progress(message: str) -> None:
+            if not message.lstrip().startswith("|"):  # the report table goes to stdout at the end
+                console.print(message.strip(), markup=False, highlight=False)
+                status.update(message.strip())
+
+        summary = run_demo(out, overwrite=overwrite, progress=progress, seed=seed)
+        status.update("writing the viewer and the plots")
+        for p in _demo_extras(out, summary, overwrite):
+            _say(f"wrote {p}")
+    if isinstance(summary.get("table"), str):
+        typer.echo(summary["table"])
     if summary.get("passed") is False:
         raise _fail("the demo's validation failed", EXIT_NOT_GOOD)
 

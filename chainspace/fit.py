@@ -28,13 +28,15 @@ points and reported in ``fit.observable`` / ``fit.relative`` and ``fit.message``
   point of its link; fingers of a gripper that is not tracked). The joint is held at its rest value
   and marked unobservable.
 * *Its motion equals a motion of the camera*: the first joint turning about the base's vertical axis
-  when every tracked point of the base lies on that axis. A static camera sees it only relative to the
+  when every tracked point of the base lies on that axis (everything it turns, turns with it, which a
+  turn of the camera imitates). A static camera sees it only relative to the
   first frame: it is held at its rest value in frame 0 and fitted in every other frame
   (``fit.relative[k]`` is True, ``fit.observable[k]`` False). With ``camera="per-frame"`` each
   frame's camera absorbs it and it is held at its 3D-fit value.
 
-To make such a joint observable, track a point that moves with it off its axis: e.g. a point on the
-base plate off the first axis, or a tool tip off the flange axis, given to ``from_urdf`` as
+To make such a joint observable: for the first kind, track a point that moves with the joint, off its
+axis (a tool tip off the flange axis); for the second, a point fixed to the link the joint turns
+against, off the axis (a mark on the base plate). Give them to ``from_urdf`` as
 ``extra_frames={"base_mark": ("base_link", [0.3, 0, 0]), "tool_tip": ("tool0", [0, 0.05, 0.2])}``.
 
 Conventions: ``fit.q`` is (F, nq) in the order of the Pinocchio model built from the same URDF
@@ -261,6 +263,7 @@ class JointFit:
     tracks: np.ndarray | None = None
     confidence: np.ndarray | None = None
     positions_base: np.ndarray | None = None
+    input_poses: np.ndarray | None = None
     timings: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -288,10 +291,11 @@ class JointFit:
 # small numerical helpers
 # ---------------------------------------------------------------------------------------------------
 def similarity_align(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None, *,
-                     reflection: bool = False) -> tuple[float, np.ndarray, np.ndarray]:
+                     reflection: bool = False, scale: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
     """Umeyama's weighted similarity ``dst ~ s R src + t`` over all points (..., 3); NaN rows ignored.
 
-    Returns (s, R (3, 3), t (3,)). ``reflection=False`` keeps det(R) = +1.
+    Returns (s, R (3, 3), t (3,)). ``reflection=False`` keeps det(R) = +1; ``scale=False`` fixes s = 1
+    (a rigid motion).
     """
     a = src.reshape(-1, 3)
     b = dst.reshape(-1, 3)
@@ -307,7 +311,7 @@ def similarity_align(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | Non
         d[-1] = -1
     R = U @ np.diag(d) @ Vt
     var = float(w @ (A ** 2).sum(1))
-    s = float((S * d).sum() / var) if var > 0 else 1.0
+    s = float((S * d).sum() / var) if var > 0 and scale else 1.0
     return s, R, mb - s * R @ ma
 
 
@@ -794,6 +798,27 @@ def _sequential_ik(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, view: _
     return q
 
 
+def _repair_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
+                     free: np.ndarray, gauge: np.ndarray) -> np.ndarray:
+    """Frames that a solution from the rest pose fits as well (within 1.5 times) and with joints nearer
+    the rest pose (by more than a tenth of a turn) take that solution: a path that passed a singularity
+    on a flipped branch (a wrist turned half a turn, the next joint mirrored) returns to the rest
+    pose's branch."""
+    F, D = len(q), target.shape[-1]
+    fixed = np.zeros(4 + D, bool)
+    q_r, _, rn_r, _, _, _ = _sequence_lm(robot, np.broadcast_to(robot.q_rest, q.shape), target, w, view, free,
+                                         fixed, 30, 1e-8, None)
+    _, jac = robot.jacobians(q)
+    rn = np.linalg.norm(view.apply(robot.positions(q))[0] - np.nan_to_num(target), axis=-1)
+    e, e_r = np.sqrt((w * rn ** 2).sum(1)), np.sqrt((w * rn_r ** 2).sum(1))
+    q_prev = np.concatenate([q[:1], q[:-1]])
+    d, d_r = _rest_distance(robot, q, q_prev, gauge), _rest_distance(robot, q_r, q_prev, gauge)
+    swap = (e_r <= 1.5 * e + 1e-9 * view.S[0]) & (d_r < d - 0.2 * np.pi)
+    q = q.copy()
+    q[swap] = q_r[swap]
+    return q
+
+
 def _fit_3d(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np.ndarray, transform: str,
             max_iter: int, tol: float, gauge: np.ndarray, rounds: int = 5) -> tuple[np.ndarray, _View, int]:
     """Joint angles and one view onto the 3D points X (F, J, 3).
@@ -928,8 +953,10 @@ def _notes(robot: RobotKinematics, blind: np.ndarray, gauge: np.ndarray, per_fra
                "observable only relative to the first frame (a turn of the camera looks the same), "
                "held at rest in frame 0")
         notes.append(f"{how}: {', '.join(names[v] for v in np.flatnonzero(gauge))}")
-    if notes:
-        notes.append("to observe a joint, track a point that moves with it off its axis (extra_frames)")
+    if blind.any():
+        notes.append("to see a joint, track a point that moves with it, off its axis (extra_frames)")
+    if gauge.any():
+        notes.append("to see the first joint absolutely, track a point fixed to the base, off its axis")
     return notes
 
 
@@ -1114,15 +1141,15 @@ def fit_joint_angles(
         w2 = np.isfinite(tracks).all(-1).astype(float) * (1.0 if confidence is None else confidence)
         if (w2 > 0).sum() < 6:
             raise TrackError(f"the tracks have {int((w2 > 0).sum())} usable points; the camera needs at least 6")
-        results = []
-        for c in [c for c in candidates if c["rms"] <= 3 * best["rms"] + 1e-12]:  # mirrors unless told apart
-            P0, t20 = _affine_camera(c["pos"], tracks, w2, per_frame)
+        def refine_2d(c):
+            nonlocal n_iter
+            P0, _ = _affine_camera(c["pos"], tracks, w2, per_frame)
             pos, jac = robot.jacobians(c["q"])
             g2 = (_gauge_directions(pos, jac, w2, P0, per_frame) | c["gauge"]) & ~blind
             q, free = _hold(robot, c["q"], blind, g2 if per_frame else c["gauge"], per_frame)
             view = _camera_view(c["pos"], tracks, w2, per_frame)
             # per-frame IK on the tracks with this camera (robust far from the solution), then all together
-            q = _sequential_ik(robot, tracks, w2, view, free, q[0], c["gauge"], q_alt=q)
+            q = _sequential_ik(robot, tracks, w2, view, free, q[0], c["gauge"])
             for _ in range(4):  # alternate the closed-form camera(s) with per-frame IK
                 view = _camera_view(robot.positions(q), tracks, w2, per_frame)
                 q, _, _, _, _, it = _sequence_lm(robot, q, tracks, w2, view, free, np.zeros(6, bool), 10, 1e-8,
@@ -1133,28 +1160,52 @@ def fit_joint_angles(
             delta = (_robust_scale(rn0, w2, 1e-6) if loss_scale_px is None else
                      (float(loss_scale_px) if loss_scale_px > 0 else None))
             out = _sequence_lm(robot, q, tracks, w2, view, free, np.ones(6, bool), max_iter, tol, delta)
+            q_fix = _repair_branches(robot, out[0], tracks, w2, out[1], free, c["gauge"])
+            if not np.array_equal(q_fix, out[0]):
+                out = _sequence_lm(robot, q_fix, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol, delta)
             n_iter += out[-1]
             # camera looking down on the base plane: its forward axis (third row, image y down) has z < 0
-            results.append(dict(cost=float(np.sqrt((w2 * out[2] ** 2).sum() / w2.sum())), out=out, c=c, g2=g2,
-                                q=out[0], gauge=g2, down=-float(np.mean(out[1].R[:, 2, 2])), free=free,
-                                delta=delta))
-        results = _prefer_rest(robot, results, "cost", blind)
+            return dict(cost=float(np.sqrt((w2 * out[2] ** 2).sum() / w2.sum())), out=out, c=c, g2=g2,
+                        q=out[0], gauge=g2, down=-float(np.mean(out[1].R[:, 2, 2])), free=free, delta=delta)
+
+        def seen_from_wrong_side(r):
+            return view_from is not None and (r["down"] < -0.02 if view_from == "above" else r["down"] > 0.02)
+
+        # both mirror images: a poor reconstruction may favour the wrong one in 3D
+        results = _prefer_rest(robot, [refine_2d(c) for c in candidates], "cost", blind)
         mirror_tied = len(results) > 1 and results[1]["cost"] <= 1.5 * results[0]["cost"] + 1e-12
         if mirror_tied and view_from in ("above", "below"):
             sgn = 1 if view_from == "above" else -1
             results[:2] = sorted(results[:2], key=lambda r: -sgn * r["down"])
+        if seen_from_wrong_side(results[0]) and transform == "similarity":
+            # The best motion is seen from the wrong side of the base plane. Its depth mirror, fitted in
+            # 3D from the refined motion (a far better start than the reconstruction), and refined:
+            r0 = results[0]
+            R0 = r0["out"][1].R[0] if not per_frame else r0["out"][1].R.mean(0)
+            X_alt = np.einsum("ij,fkj->fki", R0.T @ np.diag([1.0, 1.0, -1.0]) @ R0, r0["out"][3])
+            q_a, view_a, it_a = _fit_3d(robot, X_alt, w3, free_blind, transform, max_iter, tol, gauge0)
+            q_a, free_a = _hold(robot, q_a, blind, r0["c"]["gauge"], False)
+            view_a = _align(robot.positions(q_a), X_alt, w3, transform)
+            q_a, view_a, rn_a, pos_a, conv_a, it_b = _sequence_lm(robot, q_a, X_alt, w3, view_a, free_a,
+                                                                  free_sim, 20, tol, None)
+            n_iter += it_a + it_b
+            alt = refine_2d(dict(sign=-r0["c"]["sign"], q=q_a, pos=pos_a, gauge=r0["c"]["gauge"], conv=conv_a))
+            if alt["cost"] <= 1.5 * r0["cost"] and not seen_from_wrong_side(alt):
+                results.insert(0, alt)
+                mirror_tied = True
         r = results[0]
-        if accel_std is not None and robot.euclidean and F >= 3 and not per_frame:
+        w_ok = w2 > 0
+        sigma = float(np.median(r["out"][2][w_ok])) / 1.1774 if w_ok.any() else 0.0
+        if accel_std is not None and robot.euclidean and F >= 3 and not per_frame and sigma > 1e-6:
             # joint accelerations ~ N(0, accel_std^2) against pixel noise sigma: the prior's weight
-            out, w_ok = r["out"], w2 > 0
-            sigma = max(float(np.median(out[2][w_ok])) / 1.1774, 1e-3) if w_ok.any() else 1.0
+            out = r["out"]
             mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
             out2 = _smooth_lm(robot, out[0], tracks, w2, out[1], r["free"], np.ones(6, bool), max_iter, tol,
                               r["delta"], mu)
             n_iter += out2[5]
             r["out"] = out2
         (q, view, rn, pos_base, conv2, _), best, gauge = r["out"], r["c"], r["g2"]
-        converged = best["conv"] & conv2
+        converged = conv2  # the 3D stage only started this one
         residual_px = _rms_per_frame(rn, w2)
         cams = view.matrices()
         ts2 = view.T[view.cam_of].copy()
@@ -1195,5 +1246,5 @@ def fit_joint_angles(
         residual_3d=residual_3d, residual_px=residual_px, converged=converged, scale=float(s), rotation=R,
         translation=t, cameras=cams, translations_2d=ts2, chain=chain, urdf_path=urdf,
         message=msg, n_iter=int(n_iter), relative=relative,
-        tracks=tracks, confidence=confidence, positions_base=pos_base, timings=timings,
+        tracks=tracks, confidence=confidence, positions_base=pos_base, input_poses=poses, timings=timings,
     )

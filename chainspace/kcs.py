@@ -15,9 +15,12 @@ The algorithm starts from ``A = 0`` and alternates (a) the per-frame cameras tha
 ``W_k C`` (:func:`chainspace.camera.fit_cameras`) and (b) ``min ||A||_*  s.t.  W C = P (A S + B0)``.
 Step (b) is solved in its penalty form ``min tau ||A||_* + 1/2 sum_k ||(W_k C - P_k (A_k S + B0)) w_k||^2``
 by accelerated proximal gradient (FISTA; the proximal map of the nuclear norm is singular value
-thresholding, SVT) with ``tau`` decreasing geometrically towards zero (a continuation schedule), so
-that the equality holds at the end as far as the data allow. The singular values of the (3F x 3K)
-matrix ``A`` come from its 3K x 3K Gram matrix, so an iteration costs O(F K L).
+thresholding, SVT). The penalty weight follows a continuation schedule: in the first pass ``tau``
+falls geometrically from ``tau_range[0]`` to ``tau_range[1]`` times the spectral norm of the first
+gradient (1e-1 to 1e-4), so that the equality holds at the end as far as the data allow; later
+passes, warm-started from the previous ``A``, stay at the small ``tau``. The singular values of the
+(3F x 3K) matrix ``A`` come from its 3K x 3K Gram matrix, so an iteration costs O(F K L). The
+camera step starts from the previous rotations (two Gauss-Newton steps per pass).
 
 Missing points (NaN) and confidences enter as weights on the bones of the data term: a bone's
 weight is the smaller confidence of its two joints, 0 when either is missing.

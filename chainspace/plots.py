@@ -141,7 +141,7 @@ def plot_joint_errors(report: Any, path: str | os.PathLike, *, overwrite: bool =
     ax.bar(x - 0.2, rms, 0.4, label="RMS", color="C0")
     ax.bar(x + 0.2, mx, 0.4, label="max", color="C3", alpha=0.7)
     ax.set_xticks(x, names, rotation=30, ha="right")
-    ax.set_ylabel("angle error (deg)")
+    ax.set_ylabel("error (deg; mm for prismatic joints)")
     ax.grid(True, axis="y", alpha=0.3)
     ax.legend()
     ax.set_title("joint-angle error per joint" + (" (passed)" if getattr(report, "passed", False) else ""))

@@ -56,7 +56,9 @@ class Reconstruction:
     method : "default", "kcs" or "rigid".
     converged, n_iter, message : solver status (n_iter of the last stage).
     history : {stage: {quantity: [value per iteration]}}: "reprojection" (image units RMS),
-        "error_3d" (pose units, only when the truth was given), "objective" (refine, px^2).
+        "error_3d" (pose units, only when the truth was given); for "refine" also "objective"
+        (px^2, after every block) and its settings "noise" (estimated track noise, px), "delta"
+        (Huber threshold, px) and "lam_smooth" (one value each).
     timings : {stage: seconds}.
     """
 
@@ -278,10 +280,9 @@ def _refine(W, c, chain, X0, kcs, T, max_iter, tol, options):
         if T is not None:
             hist.setdefault("error_3d", []).append(error_3d(X, T))
 
-    res = refine_bones(Wb[:, :nb], wb[:, :nb], scales, prior, x0, max_iter=max_iter, tol=tol, parent_bone=_prior_parents(chain),
-                       monitor=monitor, **options)
+    res = refine_bones(Wb[:, :nb], wb[:, :nb], scales, prior, x0, max_iter=max_iter, tol=tol,
+                       parent_bone=_prior_parents(chain), monitor=monitor, **options)
     hist.update(res.history)
-    hist["start"] = res.start  # type: ignore[assignment]
     poses = chain.poses_from_bones(to_world(res.bones))
     return poses, cameras, res, hist
 
@@ -372,6 +373,9 @@ def _run(W_in, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis,
     for stage in rec.history.values():
         if "reprojection" in stage:
             stage["reprojection"] = [v * unit for v in stage["reprojection"]]
+        for key in ("delta", "noise"):  # refinement settings in image units
+            if key in stage:
+                stage[key] = [v * unit for v in stage[key]]
         if "objective" in stage:
             stage["objective"] = [v * unit**2 for v in stage["objective"]]
     return rec
@@ -388,7 +392,7 @@ def _spread(W, seen):
 
 
 def _stages(W, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis, refine_options):
-    """The stages of :func:`reconstruct`."""  # nothing is random; the argument keeps call sites explicit
+    """The stages of :func:`reconstruct`."""
     say = (lambda m: print(f"chainspace: {m}", file=sys.stderr)) if progress else (lambda m: None)  # noqa: E731
     timings: dict[str, float] = {}
     history: dict[str, dict[str, list[float]]] = {}
@@ -424,7 +428,7 @@ def _stages(W, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis,
         message = (f"refinement {'converged' if res.converged else 'stopped at the iteration limit'} after "
                    f"{res.n_iter} iterations, started from the {res.start}")
     if not converged:
-        warnings.warn(f"chainspace.reconstruct: {message}", ConvergenceWarning, stacklevel=3)
+        warnings.warn(f"chainspace.reconstruct: {message}", ConvergenceWarning, stacklevel=4)
     return _result(W, c, given, chain, method, poses, P, t, converged, n_iter, message, history, timings)
 
 

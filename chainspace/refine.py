@@ -209,12 +209,14 @@ def _sign_proposal(pb: _Problem, x: np.ndarray, l: np.ndarray, bones: Any = None
         acc = (z[:-2, :, :, None, None] - 2.0 * z[1:-1, :, None, :, None] + z[2:, :, None, None, :]) ** 2
         step = pb.lam_smooth * pb.s2 * acc + unary[2:, :, None, None, :]
         V = unary[0][:, :, None] + unary[1][:, None, :]  # (L, 2, 2) signs of frames (k, k+1)
-        back = np.empty((F - 2, L, 2, 2), dtype=np.int8)
+        back = np.empty((F - 2, L, 2, 2), dtype=bool)
+        s0, s1 = np.ascontiguousarray(step[:, :, 0]), np.ascontiguousarray(step[:, :, 1])
         for k in range(F - 2):
-            cand = V[..., None] + step[k]  # (L, s_k, s_k+1, s_k+2)
-            pick = cand[:, 1] < cand[:, 0]  # argmin over s_k of two states, without reductions
-            back[k] = pick
-            V = np.where(pick, cand[:, 1], cand[:, 0])
+            # V[l, s_k, s_k+1] -> V[l, s_k+1, s_k+2]: min over the two values of s_k
+            c0 = V[:, 0, :, None] + s0[k]
+            c1 = V[:, 1, :, None] + s1[k]
+            np.less(c1, c0, out=back[k])
+            V = np.minimum(c0, c1)
         sig = np.empty((F, L), dtype=np.int64)
         flat = V.reshape(L, 4).argmin(-1)
         sig[F - 2], sig[F - 1] = flat // 2, flat % 2
@@ -226,12 +228,14 @@ def _sign_proposal(pb: _Problem, x: np.ndarray, l: np.ndarray, bones: Any = None
 
 
 def _interpolated_xy(Wb: np.ndarray, wb: np.ndarray, s: np.ndarray, fallback: np.ndarray,
-                     max_gap: int = 6) -> np.ndarray:
+                     max_gap: int = 30) -> np.ndarray:
     """In-image bone parts (F, L, 2) from the data where a bone is seen; over gaps of up to
     ``max_gap`` frames linearly interpolated in time, over longer gaps (and before the first or after
-    the last sighting) taken from ``fallback`` (the KCS bones, which the visible joints constrain)."""
+    the last sighting) taken from ``fallback`` (the KCS bones, which the visible joints constrain).
+    Also returns the (F, L) mask of the entries that come from the data (seen or short gaps)."""
     xy = Wb / s[:, None, None]
     out = fallback[..., :2].copy()
+    known = np.zeros(wb.shape, bool)
     frames = np.arange(len(Wb))
     for b in range(Wb.shape[1]):
         ok = wb[:, b] > 0
@@ -244,7 +248,8 @@ def _interpolated_xy(Wb: np.ndarray, wb: np.ndarray, s: np.ndarray, fallback: np
         next_f = seen_at[np.clip(nxt, 0, len(seen_at) - 1)]
         short = ok | ((next_f - prev_f <= max_gap + 1) & (nxt > 0) & (nxt < len(seen_at)))
         out[:, b] = np.where(short[:, None], interp, out[:, b])
-    return out
+        known[:, b] = short
+    return out, known
 
 
 def _smooth_series(y: np.ndarray, w: np.ndarray, lam: float) -> np.ndarray:
@@ -357,7 +362,8 @@ def refine_bones(
     starts = {k: (v, _best_lengths(v)) for k, v in {"kcs": init, "initial pose": prior}.items()}
     # The KCS bones lifted onto the data: in-image parts from the tracks (smoothed in time), lengths
     # the median KCS lengths, depths of those lengths with Viterbi signs, level by level down the tree.
-    xy = _smooth_series(_interpolated_xy(Wb, wb, s, init), wb * (s**2 / pb.s2)[:, None], lam_smooth)
+    xy, known = _interpolated_xy(Wb, wb, s, init)
+    xy = _smooth_series(xy, wb * (s**2 / pb.s2)[:, None], lam_smooth)
     lifted = np.concatenate([xy, init[..., 2:]], -1)
     # lengths: median KCS length over the frames where the bone is seen (unseen ones are guesses)
     l_kcs = np.where(wb > 0, np.linalg.norm(init, axis=-1), np.nan)
@@ -365,6 +371,8 @@ def refine_bones(
                      np.median(np.linalg.norm(init, axis=-1), axis=0))
     for level in pb.levels:
         lifted = _sign_proposal(pb, lifted, l_med, level)
+    # Over long gaps nothing in the data says more than the KCS bones: start there.
+    lifted = np.where(known[..., None], lifted, init)
     starts["kcs lifted"] = (lifted, _best_lengths(lifted))
     energies = {k: _energy(pb, *v).sum() for k, v in starts.items()}
     start = min(energies, key=energies.get)

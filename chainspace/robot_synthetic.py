@@ -56,14 +56,16 @@ class RobotTrial:
 # trajectories
 # ---------------------------------------------------------------------------------------------------
 def _window(robot: RobotKinematics, margin: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
-    """Per q entry the range a trajectory may use: the joint limits, but at most a quarter turn either
-    side of the rest pose for revolute joints (the range in which the fit resolves wrist flips and
-    similar discrete ambiguities, see :mod:`chainspace.fit`), less a margin at each end."""
-    lo = np.where(robot.limited, robot.lower, robot.q_rest - np.pi / 2)
-    hi = np.where(robot.limited, robot.upper, robot.q_rest + np.pi / 2)
+    """Per q entry the range a trajectory may use: the joint limits, but at most 72 degrees either side
+    of the rest pose for revolute joints, less a margin at each end. Within it the fit's rule for
+    discrete ambiguities (of two wrist configurations that put every tracked point in the same place,
+    the one nearer the rest pose; see :mod:`chainspace.fit`) picks the true one."""
+    span = 0.4 * np.pi
+    lo = np.where(robot.limited, robot.lower, robot.q_rest - span)
+    hi = np.where(robot.limited, robot.upper, robot.q_rest + span)
     rev = robot.revolute
-    lo = np.where(rev, np.maximum(lo, robot.q_rest - np.pi / 2), lo)
-    hi = np.where(rev, np.minimum(hi, robot.q_rest + np.pi / 2), hi)
+    lo = np.where(rev, np.maximum(lo, robot.q_rest - span), lo)
+    hi = np.where(rev, np.minimum(hi, robot.q_rest + span), hi)
     pad = margin * (hi - lo)
     return lo + pad, hi - pad
 
@@ -179,17 +181,15 @@ def _working_pose(robot: RobotKinematics, tip: int, rng: np.random.Generator, n:
 
 
 def milling_trajectory(robot: RobotKinematics, n_frames: int, rng: np.random.Generator,
-                       *, size: float = 0.35, laps: float = 1.0) -> np.ndarray:
+                       *, size: float = 0.2, laps: float = 1.0) -> np.ndarray:
     """Joint motion (F, nq) whose tool tip (the deepest chain point) traces a rounded rectangle in a
-    horizontal plane with the tool's orientation held, solved by damped least-squares IK on the full
-    6D pose (Pinocchio's log6 error and frame Jacobian), warm-started frame to frame, inside the
-    limits. ``size`` is the rectangle's longer side as a fraction of the robot's reach."""
-    pin = robot.pin
+    horizontal plane, from a dexterous working pose, solved by damped least-squares IK on the tip's
+    position (Pinocchio frame Jacobian; minimum-norm steps, so the other joints move as little as they
+    can), warm-started frame to frame, inside the limits. ``size`` is the rectangle's longer side as a
+    fraction of the robot's reach."""
     tip = _tip_index(robot.chain)
-    fid = robot.frame_ids[tip]
     q = _working_pose(robot, tip, rng)
-    pin.framesForwardKinematics(robot.model, robot.data, q)
-    start = robot.data.oMf[fid].copy()
+    start = robot.positions(q)[0, tip]
     reach = robot.reach()
     w, h = size * reach, 0.6 * size * reach
     path = _rounded_rectangle(max(int(round(n_frames / laps)), 2), w, h, 0.2 * h)
@@ -199,17 +199,15 @@ def milling_trajectory(robot: RobotKinematics, n_frames: int, rng: np.random.Gen
     path = path @ np.array([[c, s], [-s, c]])
     out = np.empty((n_frames, robot.nq))
     for f in range(n_frames):
-        target = pin.SE3(start.rotation, start.translation + np.array([path[f, 0], path[f, 1], 0.0]))
-        for _ in range(100):
-            pin.framesForwardKinematics(robot.model, robot.data, q)
-            iMd = robot.data.oMf[fid].actInv(target)
-            err = pin.log6(iMd).vector
-            if np.linalg.norm(err) < 1e-10:
+        target = start + np.array([path[f, 0], path[f, 1], 0.0])
+        for _ in range(50):
+            pos, jac = robot.jacobians(q[None])
+            err = pos[0, tip] - target
+            if np.linalg.norm(err) < 1e-9:
                 break
-            J = pin.computeFrameJacobian(robot.model, robot.data, q, fid, pin.ReferenceFrame.LOCAL)
-            J = -pin.Jlog6(iMd.inverse()) @ J
-            v = -J.T @ np.linalg.solve(J @ J.T + 1e-8 * np.eye(6), err)
-            q = robot.clip(pin.integrate(robot.model, q, v))
+            J = jac[0, tip]
+            v = -J.T @ np.linalg.solve(J @ J.T + 1e-8 * np.eye(3), err)
+            q = robot.integrate(q[None], v[None])[0]
         out[f] = q
     return out
 

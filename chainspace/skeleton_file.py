@@ -23,9 +23,7 @@ the line where the offending name first appears for unknown joints and the like.
 from __future__ import annotations
 
 import json
-import os
 import re
-import tempfile
 import tomllib
 from os import PathLike
 from pathlib import Path
@@ -36,6 +34,7 @@ import yaml
 
 from .chain import KinematicChain
 from .errors import DescriptionError, DescriptionNotFoundError, OutputExistsError, located
+from .results import atomic_write
 
 __all__ = ["from_skeleton_file", "save_skeleton_file", "UNITS"]
 
@@ -246,13 +245,6 @@ def save_skeleton_file(chain: KinematicChain, path: str | PathLike, overwrite: b
         text = _as_toml(d)
     else:
         text = yaml.safe_dump(d, sort_keys=False, default_flow_style=None, allow_unicode=True)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_write(p, "w", overwrite) as fh:
+        fh.write(text)
     return p

@@ -333,9 +333,13 @@ def _principal_axis(points: np.ndarray) -> np.ndarray:
 
 
 def _frame_camera(vis: Any, points: np.ndarray) -> None:
-    """Aim meshcat's default camera at the middle of ``points`` (N, 3), broadside to their widest
-    horizontal spread (an arm's reach, or the reconstruction and truth side by side), from far enough
-    to see most of them (a robust size: rare far excursions do not push the camera away)."""
+    """Frame ``points`` (N, 3): the camera looks at their middle, broadside to their widest horizontal
+    spread (an arm's reach, or the reconstruction and truth side by side), from far enough to see most
+    of them (a robust size: rare far excursions do not push the camera away).
+
+    meshcat 0.3.2's orbit controls always look at the world origin, so the scene (with its ground grid
+    and axes) is moved to put the middle of the points there, rather than the camera's target moved.
+    """
     import meshcat.transformations as tf
 
     centre = points.mean(axis=0)
@@ -343,8 +347,10 @@ def _frame_camera(vis: Any, points: np.ndarray) -> None:
     side = np.array([-axis[1], axis[0]])
     side = side if side[0] + 1e-3 * side[1] >= 0 else -side
     size = 2.0 * max(float(np.percentile(np.linalg.norm(points - centre, axis=1), 90)), 1e-3)
-    vis["/Cameras/default"].set_transform(tf.translation_matrix(centre))
-    d = 1.4 * size
+    vis["chainspace"].set_transform(tf.translation_matrix(-centre))
+    vis["/Axes"].set_transform(tf.translation_matrix(-centre))
+    vis["/Grid"].set_transform(tf.translation_matrix([0.0, 0.0, -centre[2]]))
+    d = 1.2 * size
     # the camera object sits in a Y-up (three.js) node: world (x, y, z) is [x, z, -y] there
     vis["/Cameras/default/rotated/<object>"].set_property("position", [d * side[0], 0.45 * d, -d * side[1]])
 

@@ -121,3 +121,94 @@ def test_bench_dispatches_to_the_suite(monkeypatch):
 def test_bench_unknown_suite_is_a_usage_error():
     result = runner.invoke(app, ["bench", "--suite", "nonsense"])
     assert result.exit_code == 2
+
+
+def _fake_module(monkeypatch, name, **attrs):
+    import sys
+    import types
+
+    mod = types.ModuleType(f"chainspace.{name}")
+    mod.__dict__.update(attrs)
+    monkeypatch.setitem(sys.modules, f"chainspace.{name}", mod)
+    return mod
+
+
+def _saved_fit(tmp_path, F=20):
+    from types import SimpleNamespace
+
+    from chainspace.chain import KinematicChain
+    from chainspace.results import save_results
+
+    chain = KinematicChain(["base", "tip"], [("base", "tip")], name="arm")
+    fit = SimpleNamespace(q=np.zeros((F, 2)), joint_names=["j1", "j2"], observable=np.ones(2, bool),
+                          positions=np.zeros((F, 2, 3)), residual_3d=np.zeros(F), residual_px=None,
+                          converged=np.ones(F, bool), scale=1.0, rotation=np.eye(3), translation=np.zeros(3),
+                          cameras=None, translations_2d=None, chain=chain, urdf_path="arm.urdf", message="ok",
+                          n_iter=1)
+    save_results(fit, tmp_path / "fit")
+    return tmp_path / "fit" / "joint_angles.npz"
+
+
+@pytest.mark.parametrize("passed", [True, False])
+def test_validate_exit_code_follows_the_report(monkeypatch, tmp_path, passed):
+    seen = {}
+
+    class Report:
+        def __init__(self, fit, truth_q):
+            seen["q"], seen["truth"] = fit.q, truth_q
+            self.passed = passed
+
+        def table(self):
+            return "| joint | rms deg |\n| j1 | 0.1 |"
+
+        def to_dict(self):
+            return {"passed": self.passed, "joints": [{"name": "j1", "rms_deg": 0.1, "max_deg": 0.2}]}
+
+    _fake_module(monkeypatch, "validate", validate=Report)
+    fit_file = _saved_fit(tmp_path)
+    np.save(tmp_path / "truth.npy", np.full((20, 2), 0.5))
+    result = runner.invoke(app, ["validate", str(fit_file), "--truth", str(tmp_path / "truth.npy"), "--out",
+                                 str(tmp_path / "val")])
+    assert result.exit_code == (0 if passed else 1)
+    assert "| j1 | 0.1 |" in result.stdout
+    np.testing.assert_allclose(seen["truth"], 0.5)
+    assert json.loads((tmp_path / "val" / "validation.json").read_text())["passed"] is passed
+    assert (tmp_path / "val" / "validation.md").read_text().startswith("| joint |")
+    if not passed:
+        assert "validation failed" in result.stderr
+    # truth of the wrong shape is bad input
+    np.save(tmp_path / "bad.npy", np.zeros((20, 3)))
+    bad = runner.invoke(app, ["validate", str(fit_file), "--truth", str(tmp_path / "bad.npy")])
+    assert bad.exit_code == 2 and "expected (frames, 2)" in bad.stderr
+
+
+def test_demo_adds_viewer_and_plots(monkeypatch, tmp_path):
+    """`chainspace demo` runs chainspace.demo.run_demo, then writes the viewer and plots it returns."""
+    pytest.importorskip("pinocchio")
+    descriptions = pytest.importorskip("chainspace.descriptions")
+    fit_mod = pytest.importorskip("chainspace.fit")
+    from types import SimpleNamespace
+
+    chain = descriptions.shipped("milling_arm")
+    robot = fit_mod.RobotKinematics(chain.metadata["urdf_path"], chain)
+    q = robot.clip(robot.q_rest + 0.2 * np.sin(np.arange(30)[:, None] / 10 + np.arange(robot.nq)))
+    fit = SimpleNamespace(urdf_path=chain.metadata["urdf_path"], q=q, positions=robot.positions(q), chain=chain,
+                          rotation=np.eye(3), translation=np.zeros(3), scale=1.0, joint_names=list("abcdef"),
+                          observable=np.ones(robot.nq, bool))
+    report = SimpleNamespace(passed=False, to_dict=lambda: {"joints": [{"name": "a", "rms_deg": 1.0, "max_deg": 2.0}]})
+    calls = []
+
+    def run_demo(out, *, overwrite=False, progress=True, seed=0):
+        calls.append((str(out), overwrite, seed))
+        return {"fit": fit, "truth_q": q + 0.01, "report": report, "passed": False, "table": "| a | 1.0 |"}
+
+    _fake_module(monkeypatch, "demo", run_demo=run_demo)
+    result = runner.invoke(app, ["demo", "--out", str(tmp_path / "d"), "--seed", "3"])
+    assert calls == [(str(tmp_path / "d"), False, 3)]
+    assert result.exit_code == 1 and "validation failed" in result.stderr  # the report did not pass
+    assert "| a | 1.0 |" in result.stdout
+    for name in ("viewer.html", "joint_angles.png", "joint_errors.png"):
+        assert (tmp_path / "d" / name).stat().st_size > 1000
+    again = runner.invoke(app, ["demo", "--out", str(tmp_path / "d")])
+    assert again.exit_code == 2 and "--overwrite" in again.stderr
+    assert runner.invoke(app, ["demo", "--out", str(tmp_path / "d"), "--overwrite"]).exit_code == 1

@@ -141,3 +141,32 @@ def test_non_convergence_is_flagged_and_warned(chain):
     with pytest.warns(ConvergenceWarning):
         rec = reconstruct(W, chain, max_iter=1, tol=1e-12)
     assert rec.converged is False and "iteration limit" in rec.message
+
+
+def test_real_walk_beats_the_initial_pose_and_kcs(chain):
+    """Bundled CMU walk 35_01 (not the rest pose's subjects), one low-motion camera path, 2 px noise."""
+    from chainspace.datasets import cmu_walk
+    from chainspace.synthetic import scale_for_span
+
+    X = cmu_walk(35, 1)
+    P = orbit_cameras(len(X), scale=scale_for_span(X, 720.0), seed=7)
+    W = observe(X, P, translations=[450.0, 450.0], noise_px=2.0, seed=8)
+    e_init = error_3d(np.broadcast_to(chain.rest_pose, X.shape), X)
+    e_kcs = error_3d(reconstruct(W, chain, method="kcs").poses, X)
+    e_def = error_3d(reconstruct(W, chain).poses, X)
+    assert e_def < 0.6 * e_init and e_def < e_kcs
+
+
+def test_hide_points_and_tables(chain):
+    from chainspace.benchmark import Row, format_table, hide_points
+
+    W = np.zeros((600, 17, 2))
+    r = hide_points(W, chain, 0.2, seed=0)
+    assert abs(np.isnan(r[..., 0]).mean() - 0.2) < 0.02
+    limbs = hide_points(W, chain, 0.3, mode="limbs", seed=0)
+    gone = np.isnan(limbs[..., 0])
+    assert 0.3 * 8 / 17 <= gone.mean() < 0.45 * 8 / 17 and set(np.flatnonzero(gone.any(0))) <= {
+        chain.joint_index(j) for j in ("left_knee", "left_ankle", "right_knee", "right_ankle",
+                                       "left_elbow", "left_wrist", "right_elbow", "right_wrist")}
+    table = format_table([Row("walk35", 2.0, 4, {"chainspace default": (0.0201, 0.0195, 0.3)})])
+    assert "| walk35 | 2 | 4 |" in table and "20.1 / 19.5 (0.30 s)" in table

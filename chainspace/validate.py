@@ -1,0 +1,224 @@
+"""Validation of a robot fit against known kinematics: joint errors, reprojection, bone lengths.
+
+:func:`validate` compares a :class:`~chainspace.fit.JointFit` with the true joint angles when they are
+known (a synthetic check, a robot controller's log) and, always, with the robot's own description:
+the bone lengths of the reconstruction against the URDF's, and the reprojection error of the fitted
+robot. The report passes or fails against thresholds the user sets.
+
+Angles are compared wrapped into [-180, 180) degrees for revolute joints (q and q + 360 degrees are one
+pose). Joints the fit marks as seen only relative to the first frame are compared after removing
+their mean offset; unobservable joints are listed but not judged.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .errors import DescriptionError, TrackError
+
+__all__ = ["ValidationReport", "validate", "DEFAULT_THRESHOLDS"]
+
+DEFAULT_THRESHOLDS: dict[str, float] = {
+    "joint_rms_deg": 1.0,  # per observable joint, RMS over frames
+    "error_3d_pct_reach": 1.0,  # mean 3D point error of the fitted robot, % of reach
+    "reprojection_rms_px": float("inf"),  # not judged unless set
+    "bone_error_pct": float("inf"),  # reconstructed vs URDF bone lengths, not judged unless set
+}
+
+
+@dataclass
+class ValidationReport:
+    """Per-joint errors (degrees, or mm for prismatic joints), reprojection (px), 3D error (mm and % of
+    reach) and bone lengths (mm and %), with pass/fail against ``thresholds``."""
+
+    joints: list[dict[str, Any]]
+    bones: list[dict[str, Any]]
+    reprojection_rms_px: float | None
+    error_3d_mm: float | None
+    error_3d_pct_reach: float | None
+    reach_mm: float
+    thresholds: dict[str, float]
+    checks: dict[str, bool]
+    message: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def passed(self) -> bool:
+        """True when every judged check passes."""
+        return all(self.checks.values())
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready summary (floats, lists, dicts; inf thresholds as null)."""
+        def clean(v):
+            if isinstance(v, dict):
+                return {k: clean(x) for k, x in v.items()}
+            if isinstance(v, (list, tuple)):
+                return [clean(x) for x in v]
+            if isinstance(v, (np.floating, float)):
+                return float(v) if np.isfinite(v) else None
+            if isinstance(v, (np.integer,)):
+                return int(v)
+            if isinstance(v, np.bool_):
+                return bool(v)
+            return v
+
+        return clean({
+            "passed": self.passed, "checks": self.checks, "thresholds": self.thresholds,
+            "joints": self.joints, "bones": self.bones, "reprojection_rms_px": self.reprojection_rms_px,
+            "error_3d_mm": self.error_3d_mm, "error_3d_pct_reach": self.error_3d_pct_reach,
+            "reach_mm": self.reach_mm, "message": self.message, **self.extra,
+        })
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2)
+
+    def table(self) -> str:
+        """The report as markdown: a joint table, a bone table and the checks."""
+        out = ["| joint | status | RMS error | max error |", "|---|---|---|---|"]
+        for j in self.joints:
+            unit = j.get("unit", "deg")
+            if j["rms"] is None:
+                out.append(f"| {j['name']} | {j['status']} | - | - |")
+            else:
+                out.append(f"| {j['name']} | {j['status']} | {j['rms']:.3f} {unit} | {j['max']:.3f} {unit} |")
+        out += ["", "| bone | URDF mm | recovered mm | error mm | error % |", "|---|---|---|---|---|"]
+        for b in self.bones:
+            rec = "-" if b["recovered_mm"] is None else f"{b['recovered_mm']:.1f}"
+            err = "-" if b["error_mm"] is None else f"{b['error_mm']:+.1f}"
+            pct = "-" if b["error_pct"] is None else f"{b['error_pct']:+.2f}"
+            out.append(f"| {b['name']} | {b['urdf_mm']:.1f} | {rec} | {err} | {pct} |")
+        out.append("")
+        if self.reprojection_rms_px is not None:
+            out.append(f"- reprojection RMS: {self.reprojection_rms_px:.3f} px")
+        if self.error_3d_mm is not None:
+            out.append(f"- 3D error of the fitted robot: {self.error_3d_mm:.2f} mm "
+                       f"({self.error_3d_pct_reach:.3f} % of the {self.reach_mm:.0f} mm reach)")
+        for name, ok in self.checks.items():
+            t = self.thresholds.get(name)
+            out.append(f"- {name} <= {t:g}: {'PASS' if ok else 'FAIL'}")
+        out.append(f"- **{'PASSED' if self.passed else 'FAILED'}**" + (f" ({self.message})" if self.message else ""))
+        return "\n".join(out)
+
+    def __repr__(self) -> str:
+        return f"ValidationReport(passed={self.passed}, checks={self.checks})"
+
+
+def _wrap(d: np.ndarray) -> np.ndarray:
+    return (d + np.pi) % (2 * np.pi) - np.pi
+
+
+def validate(fit: Any, truth_q: Any = None, *, thresholds: dict[str, float] | None = None,
+             truth_positions: Any = None) -> ValidationReport:
+    """Validate a joint fit.
+
+    Parameters
+    ----------
+    fit
+        A :class:`chainspace.JointFit`.
+    truth_q
+        The true joint angles (F, nq) in Pinocchio order, when known.
+    thresholds
+        Overrides of :data:`DEFAULT_THRESHOLDS`: ``joint_rms_deg`` (every judged joint),
+        ``error_3d_pct_reach`` (3D error of the fitted robot against the truth, or against the
+        reconstruction without a truth), ``reprojection_rms_px``, ``bone_error_pct``.
+    truth_positions
+        True 3D points (F, J, 3) in the robot's base frame, metres; default: forward kinematics of
+        ``truth_q``.
+    """
+    if not hasattr(fit, "q") or not hasattr(fit, "joint_names"):
+        raise TrackError(f"validate needs a JointFit, got {type(fit).__name__}")
+    th = dict(DEFAULT_THRESHOLDS)
+    for k, v in (thresholds or {}).items():
+        if k not in DEFAULT_THRESHOLDS:
+            raise DescriptionError(f"unknown threshold {k!r}; known: {', '.join(DEFAULT_THRESHOLDS)}")
+        th[k] = float(v)
+    robot = fit.kinematics()
+    q = np.asarray(fit.q, float)
+    F = len(q)
+    tq = None
+    if truth_q is not None:
+        tq = np.asarray(truth_q, float)
+        if tq.shape != q.shape:
+            raise TrackError(f"truth_q has shape {tq.shape}, the fit's q {q.shape}")
+    joints = _joint_errors(robot, fit, q, tq)
+
+    # 3D error of the fitted robot (base frame) against the truth; else against the reconstruction
+    reach = robot.reach()
+    pos = fit.positions_base if fit.positions_base is not None else robot.positions(q)
+    err3 = None
+    if truth_positions is not None or tq is not None:
+        tp = robot.positions(tq) if truth_positions is None else np.asarray(truth_positions, float)
+        if tp.shape != pos.shape:
+            raise TrackError(f"truth_positions have shape {tp.shape}, expected {pos.shape}")
+        from .fit import similarity_align
+
+        # the base frame is known up to the first joint's turn when that joint is relative: align rigidly
+        _, R, t = similarity_align(pos, tp, scale=False)
+        err3 = float(np.nanmean(np.linalg.norm(pos @ R.T + t - tp, axis=-1)))
+    elif fit.residual_3d is not None and fit.scale:
+        err3 = float(np.nanmean(fit.residual_3d) / fit.scale)
+    bones = _bone_errors(robot, fit)
+    rep = None if fit.residual_px is None else float(np.sqrt(np.nanmean(np.asarray(fit.residual_px) ** 2)))
+
+    checks: dict[str, bool] = {}
+    judged = [j for j in joints if j["judged"]]
+    if tq is not None and judged:
+        checks["joint_rms_deg"] = all(j["rms"] <= th["joint_rms_deg"] for j in judged)
+    if err3 is not None:
+        checks["error_3d_pct_reach"] = 100 * err3 / reach <= th["error_3d_pct_reach"]
+    if rep is not None and np.isfinite(th["reprojection_rms_px"]):
+        checks["reprojection_rms_px"] = rep <= th["reprojection_rms_px"]
+    if np.isfinite(th["bone_error_pct"]):
+        errs = [abs(b["error_pct"]) for b in bones if b["error_pct"] is not None]
+        checks["bone_error_pct"] = bool(errs) and max(errs) <= th["bone_error_pct"]
+    failing = [j["name"] for j in judged if tq is not None and j["rms"] > th["joint_rms_deg"]]
+    msg = f"joints over {th['joint_rms_deg']:g} deg RMS: {', '.join(failing)}" if failing else ""
+    return ValidationReport(
+        joints=joints, bones=bones, reprojection_rms_px=rep,
+        error_3d_mm=None if err3 is None else 1000 * err3,
+        error_3d_pct_reach=None if err3 is None else 100 * err3 / reach, reach_mm=1000 * reach,
+        thresholds=th, checks=checks, message=msg, extra={"n_frames": F, "fit_message": fit.message},
+    )
+
+
+def _joint_errors(robot, fit, q, tq) -> list[dict[str, Any]]:
+    out = []
+    relative = np.asarray(getattr(fit, "relative", np.zeros(len(fit.joint_names), bool)), bool)
+    for k, name in enumerate(fit.joint_names):
+        obs, rel = bool(fit.observable[k]), bool(relative[k]) if relative.size else False
+        status = "observable" if obs else ("relative to frame 0" if rel else "not observable")
+        row: dict[str, Any] = {"name": name, "status": status, "judged": obs or rel, "rms": None, "max": None,
+                               "unit": "deg" if robot.revolute[k] or not robot.limited[k] else "mm"}
+        if tq is not None and (obs or rel):
+            d = q[:, k] - tq[:, k]
+            if robot.revolute[k]:
+                d = _wrap(d)
+            if rel:  # seen only up to a constant: compare after removing the mean offset
+                d = _wrap(d - np.angle(np.mean(np.exp(1j * d)))) if robot.revolute[k] else d - d.mean()
+            scale = np.degrees(1.0) if row["unit"] == "deg" else 1000.0
+            row["rms"] = float(np.sqrt(np.mean(d ** 2)) * scale)
+            row["max"] = float(np.abs(d).max() * scale)
+        out.append(row)
+    return out
+
+
+def _bone_errors(robot, fit) -> list[dict[str, Any]]:
+    """Bone lengths of the reconstruction (scaled into metres by the fit's similarity) against the URDF's."""
+    chain = fit.chain
+    urdf_len = chain.bone_lengths(robot.positions(robot.q_rest)[0])
+    rec = None
+    poses = getattr(fit, "input_poses", None)
+    if poses is not None and fit.scale:
+        rec = np.nanmedian(chain.bone_lengths(poses), axis=0) / fit.scale
+    rows = []
+    for k, (a, b) in enumerate(chain.links):
+        L = float(urdf_len[k])
+        r = None if rec is None or not np.isfinite(rec[k]) else float(rec[k])
+        rows.append({"name": f"{a}-{b}", "urdf_mm": 1000 * L, "recovered_mm": None if r is None else 1000 * r,
+                     "error_mm": None if r is None else 1000 * (r - L),
+                     "error_pct": None if r is None or L < 1e-9 else 100 * (r - L) / L})
+    return rows

@@ -1,0 +1,148 @@
+"""Joint-angle fitting with Pinocchio: known answers on exact data, observability, limits, bad input."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from chainspace.errors import ChainspaceError, TrackError
+from chainspace.fit import RobotKinematics, fit_joint_angles, similarity_align
+from chainspace.robot_synthetic import synthesize
+from chainspace.urdf import from_urdf
+
+ROBOTS = __import__("pathlib").Path(__file__).resolve().parents[1] / "robots"
+
+
+@pytest.fixture(scope="module")
+def arm():
+    chain = from_urdf(ROBOTS / "milling_arm.urdf")
+    return chain, RobotKinematics(chain.metadata["urdf_path"], chain)
+
+
+def _wrapped(d):
+    return (d + np.pi) % (2 * np.pi) - np.pi
+
+
+def test_exact_points_in_base_frame_recover_angles(arm):
+    chain, robot = arm
+    trial = synthesize(chain, n_frames=25, noise_px=0.0, seed=3)
+    fit = fit_joint_angles(trial.positions, chain=chain, transform="none")
+    assert fit.observable.all()
+    assert np.abs(_wrapped(fit.q - trial.q)).max() < 1e-6
+    assert np.allclose(fit.positions, trial.positions, atol=1e-6)
+
+
+def test_similarity_transformed_points_first_joint_relative(arm):
+    chain, robot = arm
+    trial = synthesize(chain, n_frames=25, noise_px=0.0, seed=4)
+    R = np.linalg.qr(np.random.default_rng(0).normal(size=(3, 3)))[0]
+    R *= np.linalg.det(R)
+    X = 1.7 * trial.positions @ R.T + np.array([0.3, -2.0, 1.0])
+    fit = fit_joint_angles(X, chain=chain)
+    # the first joint turns about the base's vertical axis through every base point: a turn of the
+    # similarity imitates it, so it is seen only relative to the first frame
+    assert fit.relative[0] and not fit.observable[0]
+    assert fit.q[0, 0] == pytest.approx(robot.q_rest[0])
+    assert fit.scale == pytest.approx(1.7, rel=1e-6)
+    assert np.nanmax(fit.residual_3d) < 1e-6
+    # the arm is built mirror-symmetric: the mirror image of its motion (A1, A4, A6 negated) is a
+    # motion of the same arm, and 3D points up to a similarity cannot tell them apart
+    d = _wrapped(fit.q - trial.q)
+    d[:, 0] -= d[0, 0]
+    m = _wrapped(fit.q - trial.q * np.array([-1, 1, 1, -1, 1, -1]))
+    m[:, 0] -= m[0, 0]
+    assert min(np.abs(d).max(), np.abs(m).max()) < 1e-5
+    assert np.abs(d[:, [1, 2, 4]]).max() < 1e-5
+
+
+def test_noise_free_tracks_static_camera(arm):
+    chain, robot = arm
+    trial = synthesize(chain, n_frames=30, noise_px=0.0, seed=5)
+    rng = np.random.default_rng(1)
+    R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    X = trial.positions @ R.T + rng.normal(0, 0.01, trial.positions.shape)  # a rough reconstruction
+    fit = fit_joint_angles(X, chain=chain, tracks=trial.tracks)
+    d = _wrapped(fit.q - trial.q)
+    d[:, fit.relative] -= d[:1, fit.relative]
+    judged = fit.observable | fit.relative
+    assert np.degrees(np.abs(d[:, judged])).max() < 0.05
+    assert np.nanmax(fit.residual_px) < 1e-3
+    # the static camera is recovered: u = P x + t
+    assert np.allclose(fit.reprojected(), trial.tracks, atol=1e-3)
+
+
+def test_unobservable_joint_is_flagged_and_held(arm):
+    chain, robot = arm
+    # without the spindle and tool tip nothing tracked is off the A6 axis: A6 cannot be seen
+    sub = chain.subset([j for j in chain.joints if j not in ("spindle", "tool_tip")])
+    trial = synthesize(sub, n_frames=20, noise_px=0.0, seed=6)
+    fit = fit_joint_angles(trial.positions, chain=sub, transform="none")
+    k = fit.joint_names.index("joint_a6")
+    assert not fit.observable[k]
+    assert "joint_a6" in fit.message
+    assert np.all(fit.q[:, k] == RobotKinematics(sub.metadata["urdf_path"], sub).q_rest[k])
+    others = np.arange(len(fit.joint_names)) != k
+    assert np.abs(_wrapped(fit.q - trial.q)[:, others]).max() < 1e-6
+
+
+def test_extra_frame_makes_first_joint_observable(arm):
+    chain, _ = arm
+    marked = from_urdf(ROBOTS / "milling_arm.urdf", extra_frames={"base_mark": ("base_link", [0.5, 0.3, 0.0])})
+    trial = synthesize(marked, n_frames=20, noise_px=0.0, seed=7)
+    R = np.linalg.qr(np.random.default_rng(2).normal(size=(3, 3)))[0]
+    R *= np.linalg.det(R)
+    fit = fit_joint_angles(2.0 * trial.positions @ R.T, chain=marked)
+    assert fit.observable.all() and not fit.relative.any()
+    assert np.abs(_wrapped(fit.q - trial.q)).max() < 1e-5
+
+
+def test_limits_are_respected(arm):
+    chain, robot = arm
+    trial = synthesize(chain, n_frames=10, noise_px=0.0, seed=8)
+    X = trial.positions.copy()
+    X[:, -2:] += np.array([3.0, 0.0, 0.0])  # the tool pulled far out of reach
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_joint_angles(X, chain=chain, transform="none")
+    lo, hi = robot.lower[robot.limited], robot.upper[robot.limited]
+    assert (fit.q[:, robot.limited] >= lo - 1e-12).all() and (fit.q[:, robot.limited] <= hi + 1e-12).all()
+
+
+def test_missing_points_and_confidence(arm):
+    chain, robot = arm
+    trial = synthesize(chain, n_frames=20, noise_px=0.0, seed=9)
+    X = trial.positions.copy()
+    X[3, 4] = np.nan
+    conf = np.ones(X.shape[:2])
+    conf[5, 2] = 0.0
+    fit = fit_joint_angles(X, chain=chain, transform="none", confidence=conf)
+    assert np.abs(_wrapped(fit.q - trial.q)).max() < 1e-6
+
+
+def test_similarity_align_known_answer():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(50, 3))
+    R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    R *= np.linalg.det(R)
+    s, Rf, t = similarity_align(a, 2.5 * a @ R.T + 1.0)
+    assert s == pytest.approx(2.5) and np.allclose(Rf, R) and np.allclose(t, 1.0)
+
+
+@pytest.mark.parametrize("kwargs", [dict(camera="moving"), dict(transform="affine"), dict(max_iter=0),
+                                    dict(view_from="side"), dict(accel_std=-1.0)])
+def test_bad_options(arm, kwargs):
+    chain, _ = arm
+    with pytest.raises(ChainspaceError):
+        fit_joint_angles(np.zeros((2, chain.n_joints, 3)), chain=chain, **kwargs)
+
+
+def test_bad_shapes(arm):
+    chain, _ = arm
+    with pytest.raises(TrackError):
+        fit_joint_angles(np.zeros((2, chain.n_joints + 1, 3)), chain=chain)
+    with pytest.raises(TrackError):
+        fit_joint_angles(np.zeros((2, chain.n_joints, 3)), chain=chain, tracks=np.zeros((3, chain.n_joints, 2)))
+    with pytest.raises(TrackError):
+        fit_joint_angles(np.full((2, chain.n_joints, 3), np.inf), chain=chain)
+    with pytest.raises(ChainspaceError):
+        fit_joint_angles(np.zeros((2, 3, 3)))  # no URDF anywhere

@@ -1,0 +1,69 @@
+"""Validation reports: joint errors in degrees, wrapped angles, relative joints, thresholds."""
+
+from pathlib import Path
+
+import json
+import numpy as np
+import pytest
+
+from chainspace.errors import ChainspaceError
+from chainspace.fit import fit_joint_angles
+from chainspace.robot_synthetic import synthesize
+from chainspace.urdf import from_urdf
+from chainspace.validate import validate
+
+URDF = Path(__file__).resolve().parents[1] / "robots" / "milling_arm.urdf"
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    chain = from_urdf(URDF)
+    t = synthesize(chain, n_frames=20, noise_px=0.0, seed=11)
+    return t, fit_joint_angles(t.positions, chain=chain, transform="none")
+
+
+def test_exact_fit_passes(fitted):
+    t, fit = fitted
+    rep = validate(fit, t.q)
+    assert rep.passed
+    assert all(j["rms"] < 1e-4 for j in rep.joints)
+    assert rep.error_3d_mm < 1e-3
+    assert all(abs(b["error_pct"]) < 1e-6 for b in rep.bones)  # the points were the URDF's own
+    d = json.loads(json.dumps(rep.to_dict()))
+    assert d["passed"] is True and len(d["joints"]) == len(fit.joint_names)
+    assert "| joint_a1 |" in rep.table() and "PASSED" in rep.table()
+
+
+def test_known_errors_in_degrees_and_wrapping(fitted):
+    t, fit = fitted
+    truth = t.q.copy()
+    truth[:, 1] += np.radians(2.0)  # 2 degrees off on A2
+    truth[:, 3] += 2 * np.pi  # a whole turn is the same pose
+    rep = validate(fit, truth)
+    rows = {j["name"]: j for j in rep.joints}
+    assert rows["joint_a2"]["rms"] == pytest.approx(2.0, abs=1e-4)
+    assert rows["joint_a2"]["max"] == pytest.approx(2.0, abs=1e-4)
+    assert rows["joint_a4"]["rms"] < 1e-4
+    assert not rep.passed and "joint_a2" in rep.message
+    assert validate(fit, truth, thresholds={"joint_rms_deg": 2.5}).checks["joint_rms_deg"]
+
+
+def test_relative_joint_compared_up_to_offset(fitted):
+    t, fit = fitted
+    fit_rel = type(fit)(**{**fit.__dict__, "relative": np.array([True] + [False] * 5),
+                           "observable": np.array([False] + [True] * 5)})
+    truth = t.q.copy()
+    truth[:, 0] += 0.7  # a constant offset on a joint seen only relative to the first frame
+    rep = validate(fit_rel, truth)
+    row = rep.joints[0]
+    assert row["status"] == "relative to frame 0" and row["rms"] < 1e-4
+
+
+def test_bad_input(fitted):
+    t, fit = fitted
+    with pytest.raises(ChainspaceError):
+        validate(fit, t.q[:5])
+    with pytest.raises(ChainspaceError):
+        validate(fit, t.q, thresholds={"speed": 1})
+    with pytest.raises(ChainspaceError):
+        validate("not a fit")
