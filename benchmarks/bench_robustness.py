@@ -29,13 +29,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cameras", type=int, default=None, help="camera paths per walk (default 2, quick 1)")
     ap.add_argument("--seeds", type=int, default=None, help="milling-arm trials (default 2, quick 1)")
     ap.add_argument("--frames", type=int, default=None, help="frames per milling-arm trial (default 150, quick 60)")
+    ap.add_argument("--trajectory", default="random", choices=["random", "milling"],
+                    help="milling-arm motion: smooth random joints or the demo's contour path")
     ap.add_argument("--base-noise", type=float, default=2.0, help="pixel noise under the missing-data sweeps")
     ap.add_argument("--plots", default=None, metavar="DIR", help="write the two plots into DIR")
     ap.add_argument("--overwrite", action="store_true", help="replace existing plots")
     args = ap.parse_args(argv)
     rows = run_robustness(args.quick, lambda m: print(m, file=sys.stderr), datasets=args.datasets,
                           n_cameras=args.cameras, n_seeds=args.seeds, n_frames=args.frames,
-                          base_noise_px=args.base_noise)
+                          base_noise_px=args.base_noise, arm_trajectory=args.trajectory)
     if not rows:
         print("no data: the walks need chainspace's bundled data or ../shared/data", file=sys.stderr)
         return 1

@@ -66,6 +66,12 @@ _EXPORTS: dict[str, str] = {
     "ValidationReport": "validate",
     # results, views, plots
     "save_results": "results",
+    "load_results": "results",
+    "atomic_write": "results",
+    "plot_convergence": "plots",
+    "plot_joint_angles": "plots",
+    "plot_joint_errors": "plots",
+    "plot_error_sweep": "plots",
     "write_html": "viewer",
     "show": "viewer",
 }

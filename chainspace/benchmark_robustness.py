@@ -197,7 +197,7 @@ def _sweep_walk(quick: bool, n_cameras: int, base_noise: float, say: Callable[[s
 
 
 def _sweep_arm(quick: bool, n_seeds: int, n_frames: int, base_noise: float,
-               say: Callable[[str], None]) -> list[dict]:
+               say: Callable[[str], None], trajectory: str = "random") -> list[dict]:
     from .descriptions import shipped
     from .fit import fit_joint_angles
     from .metrics import error_3d
@@ -212,7 +212,8 @@ def _sweep_arm(quick: bool, n_seeds: int, n_frames: int, base_noise: float,
     for sweep, noise, missing in plan:
         e_rec, e_fit, e_q, hid, secs = [], [], [], [], []
         for s in range(n_seeds):
-            trial = synthesize(chain, n_frames=n_frames, noise_px=noise, seed=_seed("arm", s))
+            trial = synthesize(chain, n_frames=n_frames, noise_px=noise, seed=_seed("arm", s),
+                               trajectory=trajectory)
             rng = np.random.default_rng(_seed("arm", s, sweep, missing))
             hidden = (hide_random(trial.tracks, missing, rng) if sweep == "random"
                       else hide_limbs(trial.tracks, missing, groups, trial.fps, rng) if sweep == "limb"
@@ -246,12 +247,13 @@ def _sweep_arm(quick: bool, n_seeds: int, n_frames: int, base_noise: float,
 def run_robustness(quick: bool = False, progress: Callable[[str], None] | None = None, *,
                    datasets: Sequence[str] = ("walk35", "milling arm"), n_cameras: int | None = None,
                    n_seeds: int | None = None, n_frames: int | None = None,
-                   base_noise_px: float = 2.0) -> list[dict]:
+                   base_noise_px: float = 2.0, arm_trajectory: str = "random") -> list[dict]:
     """Run the sweeps; returns one dict row per (dataset, sweep, level) (see the module docstring).
 
     ``quick``: 3 walks x 1 camera, 1 arm trial of 60 frames, 4 noise and 3 missing levels.
     Defaults otherwise: every subject-35 walk x 2 cameras, 2 arm trials of 150 frames.
-    ``base_noise_px`` is the noise under the missing-data sweeps. Row keys: dataset, sweep ("noise",
+    ``base_noise_px`` is the noise under the missing-data sweeps; ``arm_trajectory`` is "random" (smooth
+    random motion of every joint) or "milling" (the demo's contour path). Row keys: dataset, sweep ("noise",
     "random", "limb"), noise_px, missing (target fraction), hidden (fraction hidden), error_mm (3D
     error of the reconstruction), error_max_mm, runs, seconds (per reconstruction, arm: with the fit),
     and for the arm fit_error_mm and joint_rms_deg.
@@ -263,7 +265,7 @@ def run_robustness(quick: bool = False, progress: Callable[[str], None] | None =
     if "milling arm" in datasets:
         try:
             rows += _sweep_arm(quick, n_seeds or (1 if quick else 2), n_frames or (60 if quick else 150),
-                               base_noise_px, say)
+                               base_noise_px, say, arm_trajectory)
         except ImportError as exc:  # Pinocchio missing: the human rows still count
             say(f"milling arm skipped: {exc}")
     _add_ratios(rows)

@@ -111,11 +111,34 @@ def _load_poses(path: Path | None, chain: Any) -> np.ndarray | None:
     return X
 
 
-def _load_q(path: Path, nq: int) -> np.ndarray:
-    q = np.asarray(_load_array(path, "joint angles", ("q", "truth_q")), dtype=float)
+def _load_q(path: Path, names: list[str]) -> np.ndarray:
+    """Joint angles (F, nq) for joints ``names``; a CSV's columns are matched by header name (a unit
+    in parentheses ignored), else every column but frame and time is taken in order."""
+    nq = len(names)
+    if path.suffix.lower() == ".csv" and path.exists():
+        q = _csv_columns(path, names)
+    else:
+        q = np.asarray(_load_array(path, "joint angles", ("q", "truth_q")), dtype=float)
     if q.ndim != 2 or q.shape[1] != nq:
         raise TrackError(f"{path}: joint angles have shape {q.shape}, expected (frames, {nq})")
     return q
+
+
+def _csv_columns(path: Path, names: list[str]) -> np.ndarray:
+    import csv
+
+    with open(path, newline="", encoding="utf-8") as f:
+        header = next(csv.reader(f), [])
+    keys = [h.split("(")[0].strip() for h in header]
+    if all(n in keys for n in names):
+        cols = [keys.index(n) for n in names]
+    else:
+        cols = [i for i, k in enumerate(keys) if k.lower() not in ("frame", "time", "time_s", "t")]
+    try:
+        data = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float, usecols=cols, ndmin=2)
+    except ValueError as exc:
+        raise TrackError(f"{path}: cannot read the joint angles: {exc}") from None
+    return data
 
 
 def _check_outputs(paths: list[Path | None], overwrite: bool) -> None:
@@ -303,7 +326,7 @@ def validate(
     fitted = load_results(fit_file)
     if not hasattr(fitted, "q"):
         raise TrackError(f"{fit_file}: not a joint fit (write one with 'chainspace fit')")
-    truth_q = None if truth is None else _load_q(truth, np.shape(fitted.q)[1])
+    truth_q = None if truth is None else _load_q(truth, list(fitted.joint_names))
     if truth_q is not None and len(truth_q) != len(fitted.q):
         raise TrackError(f"{truth}: {len(truth_q)} frames of joint angles for a fit of {len(fitted.q)} frames")
     report = run(fitted, truth_q)
@@ -356,35 +379,62 @@ def view(
         pass
 
 
-# Benchmark suites: (module, function returning rows, function formatting them).
+# Benchmark suites: candidates (module, function returning rows, function formatting them), first found wins.
 _SUITES = {
-    "reconstruction": ("benchmark", "run_benchmark", "format_table"),
-    "speed": ("benchmark", "run_speed", "format_speed"),
-    "robustness": ("benchmark", "run_robustness", "format_robustness"),
-    "robots": ("benchmark_robots", "run_robot_benchmark", "format_robot_table"),
+    "reconstruction": [("benchmark", "run_benchmark", "format_table")],
+    "speed": [("benchmark", "run_speed", "format_speed")],
+    "robustness": [("benchmark_robustness", "run_robustness", "format_robustness"),
+                   ("benchmark", "run_robustness", "format_robustness")],
+    "robots": [("benchmark_robots", "run_robot_benchmark", "format_robot_table")],
 }
 
 
-@app.command(epilog="Example: chainspace bench --suite robots --quick")
+def _suite(name: str) -> tuple[Any, Callable[..., Any], Callable[..., str]]:
+    import importlib
+
+    for module, run_name, fmt_name in _SUITES[name]:
+        try:
+            mod = importlib.import_module(f".{module}", __package__)
+            return mod, getattr(mod, run_name), getattr(mod, fmt_name)
+        except (ImportError, AttributeError):
+            continue
+    raise _fail(f"the {name} benchmark is not available in this installation", EXIT_BAD_INPUT)
+
+
+@app.command(epilog="Example: chainspace bench --suite robustness --quick --out bench-output")
 @_guarded
 def bench(
     suite: Annotated[Suite, typer.Option(help="Which benchmark.")] = Suite.reconstruction,
     quick: Annotated[bool, typer.Option("--quick", help="A short version (fewer sequences and cameras).")] = False,
+    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Folder for the table (.md), the rows "
+                                                                    "(.json) and plots.")] = None,
+    overwrite: Overwrite = False,
 ) -> None:
     """Run a benchmark and print its table (millimetres, degrees, seconds)."""
-    import importlib
+    from .results import atomic_write, write_json
 
-    module, run_name, fmt_name = _SUITES[suite.value]
-    try:
-        mod = importlib.import_module(f".{module}", __package__)
-        run, fmt = getattr(mod, run_name), getattr(mod, fmt_name)
-    except (ImportError, AttributeError):
-        raise _fail(f"the {suite.value} benchmark is not available in this installation "
-                    f"(chainspace.{module}.{run_name})", EXIT_BAD_INPUT) from None
+    stem = None if out is None else out / f"bench_{suite.value}"
+    if stem is not None:
+        _check_outputs([stem.with_suffix(".md"), stem.with_suffix(".json")], overwrite)
+    mod, run, fmt = _suite(suite.value)
     console = _console()
     with console.status(f"running the {suite.value} benchmark{' (quick)' if quick else ''}") as status:
-        rows = run(quick=quick, progress=lambda m: (console.print(m, markup=False), status.update(m)))
-    typer.echo(fmt(rows))
+        def progress(message: str) -> None:
+            console.print(message, markup=False, highlight=False)
+            status.update(message)
+
+        rows = run(quick=quick, progress=progress)
+    table = fmt(rows)
+    typer.echo(table)
+    if stem is not None:
+        with atomic_write(stem.with_suffix(".md"), "w", overwrite) as f:
+            f.write(table.rstrip() + "\n")
+        write_json(stem.with_suffix(".json"), [getattr(r, "__dict__", r) for r in rows], overwrite=overwrite)
+        written = [stem.with_suffix(".md"), stem.with_suffix(".json")]
+        if hasattr(mod, "plot_robustness") and suite is Suite.robustness:
+            written += mod.plot_robustness(rows, out, overwrite=overwrite)
+        for p in written:
+            _say(f"wrote {p}")
 
 
 @app.command(epilog="Example: chainspace demo --out demo-output --overwrite")

@@ -114,6 +114,10 @@ class RobotKinematics:
         self.q_rest = self.clip(np.asarray(q_rest, float) if q_rest is not None and np.size(q_rest) == self.nq
                                 else np.array(pin.neutral(m)))
         self.joint_names = self._q_names()
+        # Where solvers start from "the rest pose": the rest pose with every revolute joint turned a
+        # little, because rest poses are often singular (a stretched wrist, an upright arm), where the
+        # gradient cannot tell a joint's sign.
+        self.q_seed = self.clip(self.q_rest + 0.3 * self.revolute)
         # the velocity index driving each q entry (-1 for the extra entries of multi-dof joints)
         self.v_of_q = self.idx_v.copy()
         self.q_of_v = np.array([int(np.flatnonzero(self.idx_v == v)[0]) if (self.idx_v == v).any() else -1
@@ -701,7 +705,7 @@ def _initial_view(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np
     n_c, n_f = len(Rs), len(frames)
     S, T = np.full(n_c, s), root_X - s * Rs @ x_rest[r]
     idx = np.tile(frames, n_c)
-    q = np.array(np.broadcast_to(robot.q_rest, (len(idx), robot.nq)))
+    q = np.array(np.broadcast_to(robot.q_seed, (len(idx), robot.nq)))
     for k in range(rounds):
         cand = _View(np.repeat(S, n_f), np.repeat(Rs, n_f, 0), np.repeat(T, n_f, 0), np.arange(n_c * n_f))
         q, _, rn, pos, _, _ = _sequence_lm(robot, q, X[idx], w[idx], cand, free[idx], np.zeros(7, bool),
@@ -733,7 +737,7 @@ def _branch_near_rest(robot: RobotKinematics, Y: np.ndarray, w: np.ndarray, view
     hi = np.where(robot.limited, np.minimum(robot.upper, np.pi), np.pi)
     seeds = rng.uniform(lo, hi, (n_seeds, robot.nq)) if robot.euclidean else \
         np.broadcast_to(robot.q_rest, (n_seeds, robot.nq))
-    seeds = np.concatenate([robot.q_rest[None], q_now[None], robot.clip(seeds)])
+    seeds = np.concatenate([robot.q_rest[None], robot.q_seed[None], q_now[None], robot.clip(seeds)])
     seeds[:, ~free] = q_now[~free] if robot.euclidean else seeds[:, ~free]
     n = len(seeds)
     v = _View(view.S, view.R, view.T, np.zeros(n, int))
@@ -782,7 +786,7 @@ def _sequential_ik(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, view: _
         idx = np.arange(a, min(a + block, F))
         n = len(idx)
         both = np.concatenate([idx, idx])
-        alt = np.broadcast_to(robot.q_rest, (n, robot.nq)) if q_alt is None else q_alt[idx]
+        alt = _seeded(robot, np.broadcast_to(prev, (n, robot.nq)), free[idx]) if q_alt is None else q_alt[idx]
         q0 = np.concatenate([np.broadcast_to(prev, (n, robot.nq)), alt])
         qs, _, rn, _, _, _ = _sequence_lm(robot, q0, X[both], w[both], view.take(both), free[both],
                                           np.zeros(4 + X.shape[-1], bool), 30, 1e-8, None)
@@ -798,6 +802,15 @@ def _sequential_ik(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, view: _
     return q
 
 
+def _seeded(robot: RobotKinematics, q: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """Start configurations (F, nq): the solver seed near the rest pose where a direction is free, the
+    current q where it is held."""
+    held = np.zeros(q.shape, bool)
+    vq = robot.v_of_q >= 0
+    held[:, vq] = ~free[:, robot.v_of_q[vq]]
+    return np.where(held, q, robot.q_seed)
+
+
 def _repair_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
                      free: np.ndarray, gauge: np.ndarray) -> np.ndarray:
     """Frames that a solution from the rest pose fits as well (within 1.5 times) and with joints nearer
@@ -806,7 +819,7 @@ def _repair_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, 
     pose's branch."""
     F, D = len(q), target.shape[-1]
     fixed = np.zeros(4 + D, bool)
-    q_r, _, rn_r, _, _, _ = _sequence_lm(robot, np.broadcast_to(robot.q_rest, q.shape), target, w, view, free,
+    q_r, _, rn_r, _, _, _ = _sequence_lm(robot, _seeded(robot, q, free), target, w, view, free,
                                          fixed, 30, 1e-8, None)
     _, jac = robot.jacobians(q)
     rn = np.linalg.norm(view.apply(robot.positions(q))[0] - np.nan_to_num(target), axis=-1)

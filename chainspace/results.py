@@ -236,6 +236,7 @@ def _fit_summary(fit: Any) -> dict[str, Any]:
         "scale": getattr(fit, "scale", None),
         "residual_3d_mm": stats(res3, 1000.0),
         "residual_px": stats(respx, 1.0),
+        "timings_s": getattr(fit, "timings", {}) or {},
         "units": {"q": "rad (revolute) or m (prismatic)", "positions": "m", "residual_3d": "m",
                   "residual_px": "px"},
     }

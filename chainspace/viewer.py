@@ -293,6 +293,9 @@ def build_scene(vis: Any, rec_or_poses: Any = None, *, chain: Any = None, truth:
         add_robot(scene, animation, fit.urdf_path, fit.q, fps=fps)
         if poses is None:
             poses, chain = np.asarray(fit.positions), fit.chain
+        if len(poses) != len(fit.q) or (truth is not None and len(truth) != len(fit.q)):
+            raise TrackError(f"the fit has {len(fit.q)} frames, the reconstruction {len(poses)}"
+                             + ("" if truth is None else f" and the truth {len(truth)}"))
         # reconstruction frame -> robot base frame: x_base = R^T (x - t) / s
         base = np.einsum("ij,fki->fkj", np.asarray(fit.rotation), poses - np.asarray(fit.translation))
         base /= float(fit.scale)
@@ -308,7 +311,7 @@ def build_scene(vis: Any, rec_or_poses: Any = None, *, chain: Any = None, truth:
                          radius=0.012 * size, fps=fps)
         shown = base.reshape(-1, 3) if truth is None else np.concatenate([base, truth + shift]).reshape(-1, 3)
     else:
-        if truth is not None and truth.shape[1:] != poses.shape[1:]:
+        if truth is not None and truth.shape != poses.shape:
             raise TrackError(f"truth has shape {truth.shape}, the poses {poses.shape}")
         root = chain.joint_index(chain.root)
         R = _upright(poses, chain, truth, cameras)

@@ -176,6 +176,11 @@ def test_validate_exit_code_follows_the_report(monkeypatch, tmp_path, passed):
     assert (tmp_path / "val" / "validation.md").read_text().startswith("| joint |")
     if not passed:
         assert "validation failed" in result.stderr
+    # a CSV is read by column name (units in parentheses ignored), whatever the column order
+    rows = "\n".join(f"{k},{k / 30:.3f},{0.2},{0.1}" for k in range(20))
+    (tmp_path / "truth.csv").write_text("frame,time_s,j2 (rad),j1 (rad)\n" + rows + "\n")
+    runner.invoke(app, ["validate", str(fit_file), "--truth", str(tmp_path / "truth.csv")])
+    np.testing.assert_allclose(seen["truth"], np.tile([0.1, 0.2], (20, 1)))
     # truth of the wrong shape is bad input
     np.save(tmp_path / "bad.npy", np.zeros((20, 3)))
     bad = runner.invoke(app, ["validate", str(fit_file), "--truth", str(tmp_path / "bad.npy")])
