@@ -5,14 +5,18 @@
 
 A 17-joint human17 chain moving smoothly (chainspace.synthetic.swing_motion at 120 Hz), a low-motion
 orbit camera, 2 px noise (chainspace.benchmark.run_speed). Prints a markdown table; frames/s that
-stay flat show cost linear in frames.
+stay flat show cost linear in frames. Each size is repeated for about a second and the fastest run
+counts (the machine may be shared).
+
+chainspace.reconstruct limits BLAS to one thread itself when threadpoolctl is installed; this script
+also sets OPENBLAS_NUM_THREADS=1 (unless already set) so that the numbers hold without it.
 """
 
 from __future__ import annotations
 
 import os
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # tiny matrices: BLAS threads only add overhead
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # thin matrices: BLAS threads only add overhead
 
 import argparse  # noqa: E402
 import sys  # noqa: E402

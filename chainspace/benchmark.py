@@ -178,15 +178,28 @@ def format_table(rows: Sequence[Row], columns: Sequence[str] = COLUMNS) -> str:
 
 # ------------------------------------------------------------------------------------------ speed
 def run_speed(sizes: Sequence[int] = (100, 1_000, 10_000, 100_000), *, quick: bool = False,
-              progress: Callable[[str], None] | None = None) -> list[dict[str, float]]:
+              progress: Callable[[str], None] | None = None, min_time: float = 1.0) -> list[dict[str, float]]:
     """Seconds and frames/s of the KCS stage and of the default pipeline for each number of frames.
 
     A human17 chain in smooth motion (:func:`chainspace.synthetic.swing_motion` at 120 Hz), a
-    low-motion orbit camera, 2 px noise. ``quick`` stops at 10,000 frames.
+    low-motion orbit camera, 2 px noise. ``quick`` stops at 10,000 frames. Each method runs again
+    until ``min_time`` seconds have passed (at least once) and the fastest run counts (wall clock,
+    with its CPU time): on a shared machine the fastest run is the one least slowed by others.
     """
     from .datasets import human17
     from .reconstruct import reconstruct
     from .synthetic import swing_motion
+
+    def timed(W, chain, method):
+        best, spent = None, 0.0
+        while best is None or spent < min_time:
+            t0, c0 = time.perf_counter(), time.process_time()
+            rec = reconstruct(W, chain, method=method)
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            spent += wall
+            if best is None or wall < best[0]:
+                best = (wall, cpu, rec)
+        return best
 
     chain = human17()
     rows = []
@@ -196,13 +209,9 @@ def run_speed(sizes: Sequence[int] = (100, 1_000, 10_000, 100_000), *, quick: bo
         W = observe(X, P, translations=[IMAGE_HEIGHT_PX / 2] * 2, noise_px=2.0, seed=1)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            t0 = time.perf_counter()
-            reconstruct(W, chain, method="kcs")
-            t_kcs = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            rec = reconstruct(W, chain)
-            t_def = time.perf_counter() - t0
-        rows.append({"frames": n, "kcs_s": t_kcs, "default_s": t_def,
+            t_kcs, cpu_kcs, _ = timed(W, chain, "kcs")
+            t_def, cpu_def, rec = timed(W, chain, "default")
+        rows.append({"frames": n, "kcs_s": t_kcs, "default_s": t_def, "kcs_cpu_s": cpu_kcs, "default_cpu_s": cpu_def,
                      "refine_share": rec.timings.get("refine", 0.0) / max(sum(rec.timings.values()), 1e-12)})
         if progress:
             progress(f"{n} frames: KCS {t_kcs:.2f} s, default {t_def:.2f} s")
@@ -211,12 +220,18 @@ def run_speed(sizes: Sequence[int] = (100, 1_000, 10_000, 100_000), *, quick: bo
 
 def format_speed(rows: Sequence[dict[str, float]]) -> str:
     """Markdown table of :func:`run_speed`; flat frames/s means cost linear in frames."""
-    lines = ["| frames | KCS s | KCS frames/s | default s | default frames/s | refine share |",
-             "|---:|---:|---:|---:|---:|---:|"]
+    def cpu(r, key):
+        return "-" if r.get(key) is None else f"{r[key]:.3g}"
+
+    lines = ["| frames | KCS s | KCS CPU s | KCS frames/s | default s | default CPU s | default frames/s "
+             "| refine share |", "|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         n = r["frames"]
-        lines.append(f"| {n:,} | {r['kcs_s']:.2f} | {n / r['kcs_s']:,.0f} | {r['default_s']:.2f} | "
-                     f"{n / r['default_s']:,.0f} | {r['refine_share']:.0%} |")
+        lines.append(f"| {n:,} | {r['kcs_s']:.3g} | {cpu(r, 'kcs_cpu_s')} | {n / r['kcs_s']:,.0f} | "
+                     f"{r['default_s']:.3g} | {cpu(r, 'default_cpu_s')} | {n / r['default_s']:,.0f} | "
+                     f"{r['refine_share']:.0%} |")
+    lines.append("")
+    lines.append("Fastest of repeated runs (wall clock); CPU s is that run's process time (one BLAS thread).")
     return "\n".join(lines)
 
 

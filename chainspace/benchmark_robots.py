@@ -83,7 +83,7 @@ def run_robot_benchmark(quick: bool = False, progress: Callable[[str], None] | N
                 t0 = time.perf_counter()
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    rec = reconstruct(trial.tracks, chain)
+                    rec = reconstruct(trial.tracks, chain, seed=seed)
                     fit = fit_joint_angles(rec, camera=camera)
                 secs += time.perf_counter() - t0
                 j, e = _trial_errors(fit, trial)

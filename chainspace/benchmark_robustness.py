@@ -177,7 +177,7 @@ def _sweep_walk(quick: bool, n_cameras: int, base_noise: float, say: Callable[[s
     plan = [("noise", n, 0.0) for n in noise_levels]
     plan += [(p, base_noise, m) for p in ("random", "limb") for m in missing_levels]
     for sweep, noise, missing in plan:
-        errs, hid, secs = [], [], []
+        errs, hid, secs, failed = [], [], [], []
         for key, X, cam in runs:
             W = _observe_walk(X, key, cam, noise)
             rng = np.random.default_rng(_seed(key, cam, sweep, missing))
@@ -185,13 +185,21 @@ def _sweep_walk(quick: bool, n_cameras: int, base_noise: float, say: Callable[[s
                       else hide_limbs(W, missing, groups, fps, rng) if sweep == "limb"
                       else np.zeros(W.shape[:2], bool))
             t0 = time.perf_counter()
-            rec = _reconstruct(_masked(W, hidden), chain)
+            try:
+                rec = _reconstruct(_masked(W, hidden), chain)
+            except Exception as exc:  # noqa: BLE001 - a failed run is counted and shown, not fatal
+                failed.append(f"{type(exc).__name__}: {exc}")
+                say(f"walk35 {key} camera {cam} {sweep} {missing:.0%}: FAILED {failed[-1]}")
+                continue
             secs.append(time.perf_counter() - t0)
             errs.append(error_3d(rec.poses, X))
             hid.append(hidden.mean())
+        if not errs:
+            continue
         rows.append(dict(dataset="walk35", sweep=sweep, noise_px=noise, missing=float(missing),
                          hidden=float(np.mean(hid)), error_mm=1000 * float(np.mean(errs)),
-                         error_max_mm=1000 * float(np.max(errs)), runs=len(runs), seconds=float(np.mean(secs))))
+                         error_max_mm=1000 * float(np.max(errs)), runs=len(errs), failed=len(failed),
+                         seconds=float(np.mean(secs))))
         say(f"walk35 {sweep} noise {noise:g} px missing {missing:.0%}: {rows[-1]['error_mm']:.1f} mm")
     return rows
 
@@ -210,7 +218,7 @@ def _sweep_arm(quick: bool, n_seeds: int, n_frames: int, base_noise: float,
     plan += [(p, base_noise, m) for p in ("random", "limb") for m in missing_levels]
     rows = []
     for sweep, noise, missing in plan:
-        e_rec, e_fit, e_q, hid, secs = [], [], [], [], []
+        e_rec, e_fit, e_q, hid, secs, failed = [], [], [], [], [], []
         for s in range(n_seeds):
             trial = synthesize(chain, n_frames=n_frames, noise_px=noise, seed=_seed("arm", s),
                                trajectory=trajectory)
@@ -221,12 +229,17 @@ def _sweep_arm(quick: bool, n_seeds: int, n_frames: int, base_noise: float,
             W = _masked(trial.tracks, hidden)
             conf = np.where(hidden, 0.0, trial.confidence)
             t0 = time.perf_counter()
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                from .reconstruct import reconstruct
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    from .reconstruct import reconstruct
 
-                rec = reconstruct(W, trial.chain, confidence=conf)
-                fit = fit_joint_angles(rec)
+                    rec = reconstruct(W, trial.chain, confidence=conf)
+                    fit = fit_joint_angles(rec)
+            except Exception as exc:  # noqa: BLE001 - a failed run is counted and shown, not fatal
+                failed.append(f"{type(exc).__name__}: {exc}")
+                say(f"milling arm {sweep} {missing:.0%} seed {s}: FAILED {failed[-1]}")
+                continue
             secs.append(time.perf_counter() - t0)
             e_rec.append(error_3d(rec.poses, trial.positions))
             e_fit.append(error_3d(fit.positions, trial.positions))
@@ -235,10 +248,13 @@ def _sweep_arm(quick: bool, n_seeds: int, n_frames: int, base_noise: float,
             obs = np.asarray(fit.observable, bool)
             e_q.append(float(np.degrees(np.sqrt(np.nanmean(dq[:, obs] ** 2)))) if obs.any() else np.nan)
             hid.append(hidden.mean())
+        if not e_rec:
+            continue
         rows.append(dict(dataset="milling arm", sweep=sweep, noise_px=noise, missing=float(missing),
                          hidden=float(np.mean(hid)), error_mm=1000 * float(np.mean(e_rec)),
                          error_max_mm=1000 * float(np.max(e_rec)), fit_error_mm=1000 * float(np.mean(e_fit)),
-                         joint_rms_deg=float(np.nanmean(e_q)), runs=n_seeds, seconds=float(np.mean(secs))))
+                         joint_rms_deg=float(np.nanmean(e_q)), runs=len(e_rec), failed=len(failed),
+                         seconds=float(np.mean(secs))))
         say(f"milling arm {sweep} noise {noise:g} px missing {missing:.0%}: {rows[-1]['error_mm']:.1f} mm, "
             f"fit {rows[-1]['fit_error_mm']:.1f} mm, {rows[-1]['joint_rms_deg']:.2f} deg")
     return rows
@@ -255,8 +271,9 @@ def run_robustness(quick: bool = False, progress: Callable[[str], None] | None =
     ``base_noise_px`` is the noise under the missing-data sweeps; ``arm_trajectory`` is "random" (smooth
     random motion of every joint) or "milling" (the demo's contour path). Row keys: dataset, sweep ("noise",
     "random", "limb"), noise_px, missing (target fraction), hidden (fraction hidden), error_mm (3D
-    error of the reconstruction), error_max_mm, runs, seconds (per reconstruction, arm: with the fit),
-    and for the arm fit_error_mm and joint_rms_deg.
+    error of the reconstruction), error_max_mm, runs (that succeeded), failed (runs that raised: shown
+    in the table, left out of the means), seconds (per reconstruction, arm: with the fit), and for the
+    arm fit_error_mm and joint_rms_deg.
     """
     say = progress or (lambda m: None)
     rows: list[dict] = []
@@ -275,9 +292,10 @@ def run_robustness(quick: bool = False, progress: Callable[[str], None] | None =
 def _add_ratios(rows: list[dict]) -> None:
     """``ratio``: error over the same dataset's and sweep's full-data (or zero-noise) error."""
     for r in rows:
-        base = next(b for b in rows if b["dataset"] == r["dataset"] and b["sweep"] == r["sweep"]
-                    and (b["missing"] == 0.0 if r["sweep"] != "noise" else b["noise_px"] == 0.0))
-        r["ratio"] = r["error_mm"] / base["error_mm"] if base["error_mm"] > 0 else float("nan")
+        base = next((b for b in rows if b["dataset"] == r["dataset"] and b["sweep"] == r["sweep"]
+                     and (b["missing"] == 0.0 if r["sweep"] != "noise" else b["noise_px"] == 0.0)), None)
+        ok = base is not None and base["error_mm"] > 0
+        r["ratio"] = r["error_mm"] / base["error_mm"] if ok else float("nan")
 
 
 # ------------------------------------------------------------------------------------------ targets
@@ -331,7 +349,8 @@ def format_robustness(rows: Sequence[dict]) -> str:
                      f"{r['error_mm']:.1f}", f"{r['error_max_mm']:.1f}", f"{r['ratio']:.2f}"]
             if arm:
                 cells += [f"{r['fit_error_mm']:.1f}", f"{r['joint_rms_deg']:.2f}"]
-            cells += [str(r["runs"]), f"{r['seconds']:.2f}"]
+            runs = str(r["runs"]) + (f" ({r['failed']} failed)" if r.get("failed") else "")
+            cells += [runs, f"{r['seconds']:.2f}"]
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
     lines.append("3D error: per-frame rigid Procrustes alignment, mean joint distance, mean over frames and runs. "

@@ -103,10 +103,13 @@ def fit_cameras(
     if Bx.shape != (F, L, 3):
         raise TrackError(f"B has shape {np.shape(B)}, which does not match W_bones {np.shape(W_bones)}")
     w = np.ones((F, L)) if weights is None else np.broadcast_to(np.asarray(weights, float), (F, L)).copy()
-    ok = np.isfinite(W).all(-1) & np.isfinite(Bx).all(-1) & (w > 0)
-    w = np.where(ok, w, 0.0)
-    W = np.where(ok[..., None], W, 0.0)
-    Bx = np.where(ok[..., None], Bx, 0.0)
+    ok = (w > 0) & np.isfinite(W[..., 0]) & np.isfinite(W[..., 1])
+    for c in range(3):
+        ok &= np.isfinite(Bx[..., c])
+    if not ok.all():
+        w = np.where(ok, w, 0.0)
+        W = np.where(ok[..., None], W, 0.0)
+        Bx = np.where(ok[..., None], Bx, 0.0)
 
     # Every quantity below depends on the data only through these per-frame moments, so the
     # iterations cost O(F), not O(F L): G = B^T w B (3x3), H = W^T w B (2x3), c0 = sum w |W|^2.
@@ -168,24 +171,32 @@ def _scale_and_cost(G, H, c0, R):
     return s, R, c0 - s * np.abs(num)
 
 
-# Jacobians of the predicted 2D bone (x, y) w.r.t. (ds, w1, w2, w3), for R <- exp([w]x) R, are
-# linear in the camera-axes bone y: Jx = (E0 + s E1) y, Jy = (F0 + s F1) y.
-_E0 = np.zeros((4, 3)); _E0[0, 0] = 1
-_E1 = np.zeros((4, 3)); _E1[2, 2] = 1; _E1[3, 1] = -1
-_F0 = np.zeros((4, 3)); _F0[0, 1] = 1
-_F1 = np.zeros((4, 3)); _F1[1, 2] = -1; _F1[3, 0] = 1
-
-
 def _gauss_newton_step(G, H, c0, s, R, cost, lam):
-    """One damped Gauss-Newton step on (s, rotation vector), kept per frame only if it lowers the cost."""
+    """One damped Gauss-Newton step on (s, rotation vector), kept per frame only if it lowers the cost.
+
+    The Jacobians of a predicted 2D bone (x, y) w.r.t. (ds, w1, w2, w3), for R <- exp([w]x) R, are
+    linear in the camera-axes bone y: Jx = (y0, 0, s y2, -s y1), Jy = (y1, -s y2, 0, s y0), so the
+    normal matrix sum_l w (Jx Jx^T + Jy Jy^T) and the gradient are written out in the moments
+    Gy = sum w y y^T and Hy (no per-frame matrix products).
+    """
     Gy, Hy = _moments(G, H, R)
-    sc = s[:, None, None]
-    Mx, My = _E0 + sc * _E1, _F0 + sc * _F1  # (F, 4, 3)
-    A = _mm(_mm(Mx, Gy), np.swapaxes(Mx, -1, -2)) + _mm(_mm(My, Gy), np.swapaxes(My, -1, -2))
-    g = ((Mx * (Hy[:, 0] - s[:, None] * Gy[:, :, 0])[:, None, :]).sum(-1)
-         + (My * (Hy[:, 1] - s[:, None] * Gy[:, :, 1])[:, None, :]).sum(-1))
+    g00, g01, g02 = Gy[:, 0, 0], Gy[:, 0, 1], Gy[:, 0, 2]
+    g11, g12, g22 = Gy[:, 1, 1], Gy[:, 1, 2], Gy[:, 2, 2]
+    s2 = s * s
+    F = len(s)
+    A = np.zeros((F, 4, 4))
+    A[:, 0, 0] = g00 + g11
+    A[:, 0, 1] = A[:, 1, 0] = -s * g12
+    A[:, 0, 2] = A[:, 2, 0] = s * g02
+    A[:, 1, 1] = A[:, 2, 2] = s2 * g22
+    A[:, 1, 3] = A[:, 3, 1] = -s2 * g02
+    A[:, 2, 3] = A[:, 3, 2] = -s2 * g12
+    A[:, 3, 3] = s2 * (g00 + g11)
+    vx = Hy[:, 0] - s[:, None] * Gy[:, :, 0]  # sum_l w (observed x - predicted x) y
+    vy = Hy[:, 1] - s[:, None] * Gy[:, :, 1]
+    g = np.stack([vx[:, 0] + vy[:, 1], -s * vy[:, 2], s * vx[:, 2], s * (vy[:, 0] - vx[:, 1])], -1)
     diag = np.einsum("fii->fi", A)
-    A = A + (lam[:, None] * diag + 1e-12 * (diag.sum(-1, keepdims=True) + 1e-300))[..., None] * np.eye(4)
+    A[:, _I4, _I4] += lam[:, None] * diag + 1e-12 * (diag.sum(-1, keepdims=True) + 1e-300)
     d = np.linalg.solve(A, g[..., None])[..., 0]
     R_new = _mm(rodrigues(d[:, 1:]), R)
     s_new, R_new, c_new = _scale_and_cost(G, H, c0, R_new)
@@ -195,6 +206,9 @@ def _gauss_newton_step(G, H, c0, s, R, cost, lam):
     cost = np.where(better, c_new, cost)
     lam = np.where(better, lam * 0.3, lam * 10.0)
     return s, R, cost, lam
+
+
+_I4 = np.arange(4)
 
 
 def project(poses: Any, cameras: Any, translations: Any = None) -> np.ndarray:

@@ -94,7 +94,7 @@ def run_demo(out_dir: str | Path, *, overwrite: bool = False, progress: bool | C
 
     _say(progress, "[3/5] reconstructing the 3D motion from the tracks alone")
     t = time.perf_counter()
-    rec = reconstruct(tracks, chain, confidence=confidence)
+    rec = reconstruct(tracks, chain, confidence=confidence, seed=seed)
     timings["reconstruct"] = time.perf_counter() - t
 
     _say(progress, "[4/5] fitting the URDF's joint angles (static camera, refined on the tracks)")

@@ -6,17 +6,31 @@ sequence, the joint angles ``q`` that put those frames where the points were see
 
 1. **3D fit.** A monocular reconstruction is known only up to a similarity (scale, rotation,
    translation) and, under weak perspective, a depth mirror. One similarity ``X = s R x(q) + t`` for
-   the whole sequence is estimated jointly with the joint angles by alternating Umeyama's closed form
-   with per-frame damped Gauss-Newton (Levenberg-Marquardt) on Pinocchio frame Jacobians, warm-started
-   from the previous frame, inside the joint limits. Both the poses and their mirror image are tried;
-   the better one is kept.
+   the whole sequence is estimated with the joint angles: a start found by trying rotations spread
+   over SO(3) on a few frames; IK along the sequence warm-started from the previous frames; then
+   Umeyama's closed form alternated with per-frame damped Gauss-Newton (Levenberg-Marquardt) on
+   Pinocchio frame Jacobians; then all together. Joint limits are kept by projection. Both the poses
+   and their mirror image are fitted.
 2. **Model-based refinement** (default when 2D tracks are given): with the link lengths known from
    the URDF, the joint angles and a weak-perspective camera ``u = s R[:2] x(q) + t2`` are fitted
    straight to the tracks (reprojection error in pixels, confidence weights, a robust Huber loss,
    NaN = not seen). By default one static camera for the whole sequence (a tripod in front of a robot
    on a fixed base); ``camera="per-frame"`` gives each frame its own. The normal equations have one
-   block per frame plus the shared camera; the camera is eliminated by a Schur complement, so each
-   iteration costs one Pinocchio Jacobian pass over the frames and small batched solves.
+   block per frame plus the shared camera, which a Schur complement eliminates, so an iteration costs
+   one Pinocchio Jacobian pass over the frames and small batched solves. A prior on joint
+   accelerations (``accel_std``) then averages the pixel noise over neighbouring frames; its banded
+   system is solved by a banded Cholesky factorisation.
+
+Ambiguities the tracks cannot settle, and the rules that settle them
+--------------------------------------------------------------------
+* *Mirror image.* A motion and its depth mirror project alike under weak perspective; for a robot
+  built mirror-symmetric (most industrial arms) the mirror is a valid motion of the same robot, seen
+  from the other side of its base plane. ``view_from="above"`` (default) keeps the one whose camera
+  looks down on the base plane (or level).
+* *Discrete branches.* Tracked points on joint axes leave configurations that put every point in the
+  same place (a wrist turned half a turn with the next joint mirrored). The branch nearer the rest
+  pose is kept, frame by frame (also where a path passes a singularity): joints within about 70
+  degrees of their rest values come out right.
 
 Observability (the rule)
 ------------------------
@@ -57,8 +71,6 @@ import numpy as np
 from .chain import KinematicChain
 from .errors import ConvergenceWarning, DescriptionError, DescriptionNotFoundError, TrackError
 
-import os
-_DEBUG = bool(os.environ.get("CS_DEBUG"))
 __all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"]
 
 
@@ -117,7 +129,9 @@ class RobotKinematics:
         # Where solvers start from "the rest pose": the rest pose with every revolute joint turned a
         # little, because rest poses are often singular (a stretched wrist, an upright arm), where the
         # gradient cannot tell a joint's sign.
-        self.q_seed = self.clip(self.q_rest + 0.3 * self.revolute)
+        up = self.q_rest + 0.3
+        seed = np.where(self.limited & (up > self.upper), self.q_rest - 0.3, up)
+        self.q_seed = self.clip(np.where(self.revolute, seed, self.q_rest))
         # the velocity index driving each q entry (-1 for the extra entries of multi-dof joints)
         self.v_of_q = self.idx_v.copy()
         self.q_of_v = np.array([int(np.flatnonzero(self.idx_v == v)[0]) if (self.idx_v == v).any() else -1
@@ -482,7 +496,6 @@ def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.
     L = _second_differences(F)
     LtL = (L.T @ L).tocsr()
     frozen = (~free).reshape(-1)
-    cols = np.arange(N)
 
     def band(Hqq, extra):
         ab = np.zeros((u + 1, N))
@@ -528,15 +541,12 @@ def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.
             converged = True
             break
         rel = (cost - trial[-1]) / max(cost, 1e-300)
-        if _DEBUG:
-            print(f"smooth it {it} cost {trial[-1]:.8g} rel {rel:.2g} lam {lam:.2g}")
         q, view = q_t, v_t
         pos, jac, y, res, cost = trial
         lam = max(lam / 5, 1e-12)
         if rel < tol or cost < 1e-24:
             converged = True
             break
-    del cols
     return q, view, np.linalg.norm(res, axis=-1), pos, np.full(F, converged), it
 
 
@@ -607,8 +617,6 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
         q[b], pos[b], jac[b], y[b], res[b], cost[b] = q_t[better], p_t[better], j_t[better], y_t[better], \
             r_t[better], c_t[better]
         view = view.put(a, v_t, better)
-        if _DEBUG:
-            print(f"lm it {it} frames {len(a)} cost {cost.sum():.6g} lam {np.median(lam[a]):.2g} accepted {better.mean():.2f}")
         lam[b] = np.maximum(lam[b] / 5, 1e-12)
         lam[a[~better]] *= 10
         done = (rel < tol) | (cost[b] < 1e-24)
@@ -636,16 +644,6 @@ def _robust_scale(rn: np.ndarray, w: np.ndarray, floor: float) -> float:
 # ---------------------------------------------------------------------------------------------------
 # step 1: joint angles and one similarity from 3D points
 # ---------------------------------------------------------------------------------------------------
-def _ik(robot: RobotKinematics, Y: np.ndarray, w: np.ndarray, q0: np.ndarray, free: np.ndarray,
-        max_iter: int) -> np.ndarray:
-    """Levenberg-Marquardt for one frame: q minimising sum_j w_j |x_j(q) - Y_j|^2 inside the limits.
-    Y (J, 3) targets in the base frame, q0 (nq,), free (nv,)."""
-    view = _View(np.ones(1), np.eye(3)[None], np.zeros((1, 3)), np.zeros(1, int))
-    q, *_ = _sequence_lm(robot, q0[None], Y[None], w[None], view, free[None], np.zeros(7, bool),
-                         max_iter, 1e-8, None)
-    return q[0]
-
-
 def _align(x: np.ndarray, X: np.ndarray, w: np.ndarray, transform: str) -> _View:
     """The sequence's similarity (or rigid motion, or identity) from base-frame points x onto X."""
     if transform == "none":
@@ -718,10 +716,6 @@ def _initial_view(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np
     err = np.sqrt((w[idx] * rn ** 2).sum(1) / np.maximum(w[idx].sum(1), 1e-300)).reshape(n_c, n_f)
     best = int(np.argmin(np.median(err, axis=1)))
     return _View(S[best:best + 1], Rs[best][None], T[best][None], np.zeros(F, int))
-
-
-def _link_index(chain: KinematicChain) -> list[tuple[int, int]]:
-    return [(chain.joint_index(a), chain.joint_index(b)) for a, b in chain.links]
 
 
 def _branch_near_rest(robot: RobotKinematics, Y: np.ndarray, w: np.ndarray, view: _View, free: np.ndarray,
@@ -916,13 +910,14 @@ def _names_of_v(robot: RobotKinematics) -> list[str]:
     return [m.names[j] for j in range(1, m.njoints) for _ in range(m.joints[j].nv)]
 
 
-def _prefer_rest(robot: RobotKinematics, cands: list[dict], key: str, blind: np.ndarray) -> list[dict]:
+def _prefer_rest(robot: RobotKinematics, cands: list[dict], key: str, blind: np.ndarray,
+                 floor: float = 0.0) -> list[dict]:
     """Candidates sorted by their error ``key``; among those the data cannot tell apart (error within
-    1.5 times the best, as a mirror image often fits as well as the truth), the nearest the rest pose
-    (mean absolute joint offset over the fitted, observable joints) comes first."""
+    1.5 times the best plus ``floor``, as a mirror image often fits as well as the truth), the
+    nearest the rest pose (mean absolute joint offset over the fitted, observable joints) comes first."""
     cands = sorted(cands, key=lambda c: c[key])
     best = cands[0][key]
-    tied = [c for c in cands if c[key] <= 1.5 * best + 1e-12]
+    tied = [c for c in cands if c[key] <= 1.5 * best + floor + 1e-12]
 
     def distance(c):
         seen = ~(blind | c["gauge"])[robot.v_of_q[robot.v_of_q >= 0]]
@@ -1154,6 +1149,9 @@ def fit_joint_angles(
         w2 = np.isfinite(tracks).all(-1).astype(float) * (1.0 if confidence is None else confidence)
         if (w2 > 0).sum() < 6:
             raise TrackError(f"the tracks have {int((w2 > 0).sum())} usable points; the camera needs at least 6")
+        # image-size tolerance for exact data: a thousandth of the tracks' extent (0.8 px at 800 px)
+        px_floor = 1e-3 * float(max(np.ptp(tracks[..., 0][w2 > 0]), np.ptp(tracks[..., 1][w2 > 0])))
+
         def refine_2d(c):
             nonlocal n_iter
             P0, _ = _affine_camera(c["pos"], tracks, w2, per_frame)
@@ -1170,7 +1168,7 @@ def fit_joint_angles(
                 n_iter += it
             pos = robot.positions(q)
             rn0 = np.linalg.norm(view.apply(pos)[0] - np.nan_to_num(tracks), axis=-1)
-            delta = (_robust_scale(rn0, w2, 1e-6) if loss_scale_px is None else
+            delta = (_robust_scale(rn0, w2, px_floor) if loss_scale_px is None else
                      (float(loss_scale_px) if loss_scale_px > 0 else None))
             out = _sequence_lm(robot, q, tracks, w2, view, free, np.ones(6, bool), max_iter, tol, delta)
             q_fix = _repair_branches(robot, out[0], tracks, w2, out[1], free, c["gauge"])
@@ -1185,8 +1183,8 @@ def fit_joint_angles(
             return view_from is not None and (r["down"] < -0.02 if view_from == "above" else r["down"] > 0.02)
 
         # both mirror images: a poor reconstruction may favour the wrong one in 3D
-        results = _prefer_rest(robot, [refine_2d(c) for c in candidates], "cost", blind)
-        mirror_tied = len(results) > 1 and results[1]["cost"] <= 1.5 * results[0]["cost"] + 1e-12
+        results = _prefer_rest(robot, [refine_2d(c) for c in candidates], "cost", blind, 0.05 * px_floor)
+        mirror_tied = len(results) > 1 and results[1]["cost"] <= 1.5 * results[0]["cost"] + 0.05 * px_floor
         if mirror_tied and view_from in ("above", "below"):
             sgn = 1 if view_from == "above" else -1
             results[:2] = sorted(results[:2], key=lambda r: -sgn * r["down"])
@@ -1203,7 +1201,7 @@ def fit_joint_angles(
                                                                   free_sim, 20, tol, None)
             n_iter += it_a + it_b
             alt = refine_2d(dict(sign=-r0["c"]["sign"], q=q_a, pos=pos_a, gauge=r0["c"]["gauge"], conv=conv_a))
-            if alt["cost"] <= 1.5 * r0["cost"] and not seen_from_wrong_side(alt):
+            if alt["cost"] <= 1.5 * r0["cost"] + 0.05 * px_floor and not seen_from_wrong_side(alt):
                 results.insert(0, alt)
                 mirror_tied = True
         r = results[0]

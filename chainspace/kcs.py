@@ -20,7 +20,8 @@ falls geometrically from ``tau_range[0]`` to ``tau_range[1]`` times the spectral
 gradient (1e-1 to 1e-4), so that the equality holds at the end as far as the data allow; later
 passes, warm-started from the previous ``A``, stay at the small ``tau``. The singular values of the
 (3F x 3K) matrix ``A`` come from its 3K x 3K Gram matrix, so an iteration costs O(F K L). The
-camera step starts from the previous rotations (two Gauss-Newton steps per pass).
+camera step starts from the previous rotations (one Gauss-Newton step per pass: more did not change
+the result).
 
 Missing points (NaN) and confidences enter as weights on the bones of the data term: a bone's
 weight is the smaller confidence of its two joints, 0 when either is missing.
@@ -35,7 +36,8 @@ import numpy as np
 
 from .camera import fit_cameras
 
-__all__ = ["kcs_factorize", "KCSResult", "bone_observations", "fit_translations", "reprojection_rms"]
+__all__ = ["kcs_factorize", "KCSResult", "bone_observations", "fit_translations", "reprojection_rms",
+           "reprojection_with_translations"]
 
 
 @dataclass
@@ -86,6 +88,17 @@ def reprojection_rms(tracks, weights, poses, cameras, translations) -> float:
     return float(np.sqrt((w * d2).sum() / max(w.sum(), 1e-300)))
 
 
+def reprojection_with_translations(Wt: np.ndarray, weights: np.ndarray, Xt: np.ndarray,
+                                   P: np.ndarray) -> tuple[float, np.ndarray]:
+    """Weighted reprojection RMS (image units) of poses Xt (F, 3, J) under cameras P (F, 2, 3) with
+    the best translation per frame, and those translations (F, 2). Tracks Wt (F, 2, J) with 0
+    where unseen and weights (F, J) 0 there: the (F, 2, J) layout keeps it cheap."""
+    d = Wt - _PA(P, Xt)
+    t = (d * weights[:, None, :]).sum(-1) / np.maximum(weights.sum(-1), 1e-300)[:, None]
+    r2 = (weights[:, None, :] * (d - t[..., None]) ** 2).sum()
+    return float(np.sqrt(r2 / max(weights.sum(), 1e-300))), t
+
+
 def _pose_basis(tracks, weights, P, X0, n_basis):
     """Q (3K x J): leading right singular vectors of W - P X0, each frame's translation removed."""
     seen = np.isfinite(tracks).all(-1)
@@ -112,14 +125,13 @@ def _svt(A: np.ndarray, tau: float) -> tuple[np.ndarray, float]:
 
 
 def _PA(P: np.ndarray, A: np.ndarray) -> np.ndarray:
-    """Per-frame products P_k A_k, (F, 2, 3) x (F, 3, m) -> (F, 2, m), by broadcasting (numpy's
-    stacked matmul is slow for tiny matrices)."""
-    return P[:, :, 0, None] * A[:, None, 0] + P[:, :, 1, None] * A[:, None, 1] + P[:, :, 2, None] * A[:, None, 2]
+    """Per-frame products P_k A_k, (F, r, 3) x (F, 3, m) -> (F, r, m)."""
+    return np.matmul(P, A)
 
 
 def _PtG(P: np.ndarray, G: np.ndarray) -> np.ndarray:
     """Per-frame products P_k^T G_k, (F, 2, 3) x (F, 2, m) -> (F, 3, m)."""
-    return P[:, 0, :, None] * G[:, None, 0] + P[:, 1, :, None] * G[:, None, 1]
+    return np.matmul(np.swapaxes(P, -1, -2), G)
 
 
 def _solve_A(A, P, S, R, wb, taus):
@@ -133,10 +145,22 @@ def _solve_A(A, P, S, R, wb, taus):
     step = 1.0 / lip
     Y, A_prev, t = A.copy(), A.copy(), 1.0
     St = np.ascontiguousarray(S.T)
+    wk = wb[:, 0]
+    if (wb == wk[:, None]).all():
+        # One weight per frame (every bone seen, equal confidences): the gradient
+        # w_k (P_k^T P_k A_k S S^T - P_k^T R_k S^T) needs no per-bone products in the loop.
+        PtP = _PtG(P, P) * wk[:, None, None]
+        G = S @ St
+        c = _PtG(P, ((R * wk[:, None, None]).reshape(2 * F, -1) @ St).reshape(F, 2, m))
+
+        def gradient(Y):
+            return (_PA(PtP, Y).reshape(3 * F, m) @ G).reshape(F, 3, m) - c
+    else:
+        def gradient(Y):
+            res = (_PA(P, Y).reshape(2 * F, m) @ S).reshape(F, 2, -1) - R  # (F, 2, L)
+            return _PtG(P, ((res * wb[:, None, :]).reshape(2 * F, -1) @ St).reshape(F, 2, m))
     for tau in taus:
-        res = (_PA(P, Y).reshape(2 * F, m) @ S).reshape(F, 2, -1) - R  # (F, 2, L)
-        grad = _PtG(P, ((res * wb[:, None, :]).reshape(2 * F, -1) @ St).reshape(F, 2, m))
-        A_new, _ = _svt(Y - step * grad, step * tau)
+        A_new, _ = _svt(Y - step * gradient(Y), step * tau)
         t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
         Y = A_new + ((t - 1.0) / t_new) * (A_new - A_prev)
         A_prev, t = A_new, t_new
@@ -182,16 +206,13 @@ def kcs_factorize(
     nb = chain.n_bones
     Dm = np.ascontiguousarray(chain.D)
     Wt = np.swapaxes(np.where(np.isfinite(tracks), tracks, 0.0), 1, 2)  # (F, 2, J)
-    wsum = np.maximum(weights.sum(-1), 1e-300)
 
     def record(A, P):
         # Reprojection RMS with the best translation per frame, all in (F, 2, J) layout (cheap).
         B = (A.reshape(-1, A.shape[-1]) @ S).reshape(F, 3, -1) + B0  # (F, 3, L)
         Xt = (B[:, :, :nb].reshape(-1, nb) @ Dm).reshape(F, 3, -1)  # (F, 3, J)
-        d = Wt - _PA(P, Xt)
-        t = (d * weights[:, None, :]).sum(-1) / wsum[:, None]
-        r2 = (weights[:, None, :] * (d - t[..., None]) ** 2).sum()
-        hist["reprojection"].append(float(np.sqrt(r2 / max(weights.sum(), 1e-300))))
+        rms, t = reprojection_with_translations(Wt, weights, Xt, P)
+        hist["reprojection"].append(rms)
         X = np.swapaxes(Xt, 1, 2)
         if truth is not None and error_fn is not None:
             hist.setdefault("error_3d", []).append(float(error_fn(X, truth)))
@@ -200,7 +221,7 @@ def kcs_factorize(
     X, t = record(A, P)
     # The threshold scale: spectral norm of the gradient at A = 0 (where every singular value would
     # be thresholded away if tau were larger).
-    R = Wb_cols - _PA(P, np.broadcast_to(B0, (F,) + B0.shape))
+    R = Wb_cols - _PA(P, B0)
     g0 = _PtG(P, ((R * wb[:, None, :]).reshape(2 * F, -1) @ S.T).reshape(F, 2, -1))
     g0n = float(np.sqrt(max(np.linalg.eigvalsh(g0.reshape(-1, g0.shape[-1]).T @ g0.reshape(-1, g0.shape[-1]))[-1], 0)))
     tau_hi, tau_lo = tau_range[0] * g0n, tau_range[1] * g0n
@@ -208,13 +229,13 @@ def kcs_factorize(
     B_prev = np.broadcast_to(B0, (F,) + B0.shape)
     b_rms = float(np.sqrt((B0**2).sum(0).mean()))
     for it in range(1, max_iter + 1):
-        R = Wb_cols - _PA(P, np.broadcast_to(B0, (F,) + B0.shape))
+        R = Wb_cols - _PA(P, B0)
         # Continuation: the first pass lowers tau from tau_hi to tau_lo; later passes, warm-started
         # from the previous A, stay at tau_lo.
         taus = np.geomspace(tau_hi, tau_lo, svt_steps) if it == 1 else np.full(max(svt_steps // 4, 1), tau_lo)
         A = _solve_A(A, P, S, R, wb, taus)
         B = (A.reshape(-1, A.shape[-1]) @ S).reshape(F, 3, -1) + B0
-        P, s, Rot = fit_cameras(Wb, np.swapaxes(B, 1, 2), wb, return_rotation=True, R0=Rot, n_iter=2)
+        P, s, Rot = fit_cameras(Wb, np.swapaxes(B, 1, 2), wb, return_rotation=True, R0=Rot, n_iter=1)
         X, t = record(A, P)
         r0, r1 = hist["reprojection"][-2], hist["reprojection"][-1]
         # Converged when the reprojection RMS changes by less than tol times the initial pose's

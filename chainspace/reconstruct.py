@@ -18,6 +18,7 @@ image quantities are in the units of the tracks (px).
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 import warnings
@@ -29,7 +30,8 @@ import numpy as np
 from .camera import fit_cameras, smooth_scales
 from .chain import KinematicChain
 from .errors import ConvergenceWarning, TrackError
-from .kcs import bone_observations, fit_translations, kcs_factorize, reprojection_rms
+from .kcs import (bone_observations, fit_translations, kcs_factorize, reprojection_rms,
+                  reprojection_with_translations)
 from .metrics import error_3d
 from .refine import refine_bones
 
@@ -270,15 +272,17 @@ def _refine(W, c, chain, X0, kcs, T, max_iter, tol, options):
     scales = smooth_scales(kcs.scales, (wb > 0).sum(-1))
     cameras = scales[:, None, None] * R[:, :2]
 
-    Dt = np.ascontiguousarray(chain.D.T)
+    D = np.ascontiguousarray(chain.D)
+    seen = np.isfinite(W).all(-1)
+    Wt = np.swapaxes(np.where(seen[..., None], W, 0.0), 1, 2)  # (F, 2, J)
+    cw = np.where(seen, c, 0.0)
 
     def monitor(x):
-        B = to_world(x)  # (F, nb, 3) -> poses by one matrix product over all frames
-        X = (Dt @ np.swapaxes(B, 0, 1).reshape(nb, -1)).reshape(-1, len(B), 3).swapaxes(0, 1)
-        t = fit_translations(W, c, X, cameras)
-        hist["reprojection"].append(reprojection_rms(W, c, X, cameras, t))
+        B = np.swapaxes(to_world(x), 1, 2)  # (F, 3, nb) -> poses by one matrix product over all frames
+        Xt = (B.reshape(-1, nb) @ D).reshape(len(B), 3, -1)
+        hist["reprojection"].append(reprojection_with_translations(Wt, cw, Xt, cameras)[0])
         if T is not None:
-            hist.setdefault("error_3d", []).append(error_3d(X, T))
+            hist.setdefault("error_3d", []).append(error_3d(np.swapaxes(Xt, 1, 2), T))
 
     res = refine_bones(Wb[:, :nb], wb[:, :nb], scales, prior, x0, max_iter=max_iter, tol=tol,
                        parent_bone=_prior_parents(chain), monitor=monitor, **options)
@@ -337,6 +341,13 @@ def reconstruct(
     TrackError
         Tracks, confidences or poses that cannot be used, with what is wrong and where. A
         reconstruction needs at least ``MIN_FRAMES`` frames with ``MIN_POINTS`` visible points.
+
+    Notes
+    -----
+    While it runs, BLAS is limited to one thread when the ``threadpoolctl`` package is installed
+    (the previous limits are restored on return; nothing is set in the environment). The matrix
+    products here are thin (frames x 15): BLAS threads only add overhead, and on a busy machine
+    they made the KCS stage 3-4 times slower.
     """
     if method not in METHODS:
         raise TrackError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -346,13 +357,27 @@ def reconstruct(
     _check_options(chain, max_iter, tol, n_basis, refine_options)
     W, c, given, X0, T = _check_inputs(tracks, chain, init_pose, confidence, truth)
     try:
-        with np.errstate(all="ignore"):
+        with np.errstate(all="ignore"), _one_blas_thread():
             return _run(W, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis, refine_options)
     except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
         if isinstance(exc, TrackError):
             raise
         raise TrackError(f"the reconstruction failed numerically on these tracks ({type(exc).__name__}: {exc}); "
                          "check for degenerate tracks (points that never move apart)") from None
+
+
+_BLAS: list = []  # the threadpoolctl controller, made on first use (finding the libraries takes ~15 ms)
+
+
+def _one_blas_thread():
+    """A context limiting BLAS to one thread (threadpoolctl), or doing nothing without threadpoolctl."""
+    if not _BLAS:
+        try:
+            from threadpoolctl import ThreadpoolController
+            _BLAS.append(ThreadpoolController())
+        except Exception:  # not installed, or no BLAS found: run with the defaults
+            _BLAS.append(None)
+    return contextlib.nullcontext() if _BLAS[0] is None else _BLAS[0].limit(limits=1, user_api="blas")
 
 
 def _run(W_in, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis, refine_options):

@@ -105,8 +105,8 @@ def random_trajectory(robot: RobotKinematics, n_frames: int, fps: float, rng: np
     Per joint a sum of three sinusoids of random low frequency (at most ``max_hz``) and phase, about a
     random centre of its window (:func:`_window`), reaching ``amplitude`` of the window's half width,
     clipped into the limits. Of up to ``tries`` such motions the first whose :func:`conditioning`
-    stays above a third of the robot's typical value is taken (else the best): a singular frame has
-    joints no camera can separate, which says nothing about a camera set-up.
+    stays above half the robot's typical value is taken (else the best): near a singularity joints
+    cannot be told apart by any camera, which says nothing about a camera set-up.
     """
     lo, hi = _window(robot)
     probe = robot.clip(np.where(robot.v_of_q >= 0, rng.uniform(lo, hi, (64, robot.nq)), robot.q_rest))
@@ -117,7 +117,7 @@ def random_trajectory(robot: RobotKinematics, n_frames: int, fps: float, rng: np
         c = float(conditioning(robot, q[:: max(1, n_frames // 60)]).min())
         if c > best_c:
             best, best_c = q, c
-        if c >= typical / 3:
+        if c >= typical / 2:
             break
     return best
 

@@ -41,3 +41,17 @@ def test_nan_and_zero_confidence_are_the_same():
     b = kcs_factorize(Wg, c0, chain, chain.rest_pose)
     np.testing.assert_allclose(a.poses, b.poses, atol=1e-9)
     assert np.isfinite(a.poses).all()
+
+
+def test_per_frame_weights_shortcut_matches_the_per_bone_gradient():
+    """With one weight per frame the SVT steps use a cheaper gradient; it is the same gradient, so a
+    confidence that differs by 1e-12 in one point (which takes the general path) changes nothing."""
+    chain, X, W = _case(noise=1.0, F=60)
+    c = np.ones(W.shape[:2])
+    c[10] = 0.5  # still one weight per frame
+    fast = kcs_factorize(W, c, chain, chain.rest_pose)
+    c2 = c.copy()
+    c2[20, 3] = 1.0 - 1e-12
+    general = kcs_factorize(W, c2, chain, chain.rest_pose)
+    assert fast.n_iter == general.n_iter
+    np.testing.assert_allclose(fast.poses, general.poses, atol=1e-7)

@@ -52,3 +52,28 @@ def test_lengths_become_constant_and_data_is_kept():
     # in-image parts still match the 2D bones (px)
     rep = np.linalg.norm(s[:, None, None] * r.bones[..., :2] - Wb, axis=-1)
     assert np.median(rep) < 1.0
+
+
+@pytest.mark.parametrize("F", [1, 2, 3, 4, 5, 7, 10, 11])
+def test_viterbi_signs_are_the_exact_minimiser(F):
+    """The blocked min-plus Viterbi equals brute force over all 2^F sign sequences."""
+    import itertools
+
+    from chainspace.refine import _viterbi
+
+    rng = np.random.default_rng(F)
+    n, k_acc = 3, 2.0
+    m = np.abs(rng.normal(size=(n, F)))
+    z = np.stack([m, -m])  # (2, n, F)
+    unary = (z - rng.normal(size=(1, n, F))) ** 2
+
+    def cost(sig, b):
+        zz = np.where(np.array(sig) == 0, m[b], -m[b])
+        acc = zz[2:] - 2 * zz[1:-1] + zz[:-2] if F > 2 else np.zeros(0)
+        return unary[np.array(sig), b, np.arange(F)].sum() + k_acc * (acc**2).sum()
+
+    got = _viterbi(unary, z, k_acc)
+    assert got.shape == (n, F)
+    for b in range(n):
+        best = min(cost(sig, b) for sig in itertools.product((0, 1), repeat=F))
+        assert cost(tuple(got[b]), b) == pytest.approx(best, rel=1e-12, abs=1e-12)
