@@ -33,8 +33,7 @@ from .metrics import error_3d
 from .synthetic import observe, orbit_cameras, scale_for_span
 
 __all__ = ["Row", "sequence_groups", "evaluate_sequence", "run_benchmark", "format_table", "COLUMNS",
-           "IMAGE_HEIGHT_PX", "SPAN_PX", "run_speed", "format_speed", "run_robustness", "format_robustness",
-           "hide_points"]
+           "IMAGE_HEIGHT_PX", "SPAN_PX", "run_speed", "format_speed"]
 
 IMAGE_HEIGHT_PX = 900
 SPAN_PX = 0.8 * IMAGE_HEIGHT_PX
@@ -232,98 +231,4 @@ def format_speed(rows: Sequence[dict[str, float]]) -> str:
                      f"{r['refine_share']:.0%} |")
     lines.append("")
     lines.append("Fastest of repeated runs (wall clock); CPU s is that run's process time (one BLAS thread).")
-    return "\n".join(lines)
-
-
-# ------------------------------------------------------------------------------------- robustness
-_LIMBS = (("left_knee", "left_ankle"), ("right_knee", "right_ankle"),
-          ("left_elbow", "left_wrist"), ("right_elbow", "right_wrist"))
-
-
-def hide_points(tracks: np.ndarray, chain: Any, fraction: float, *, mode: str = "random",
-                fps: float = 120.0, seed: int = 0) -> np.ndarray:
-    """Tracks with points set to NaN.
-
-    ``mode="random"``: each point is hidden with probability ``fraction``. ``mode="limbs"``: whole
-    lower limbs (knee and ankle, or elbow and wrist) hidden for one second at a time, at random
-    times, until ``fraction`` of the limb joints' points are hidden (limb joints are 8 of human17's
-    17, so 50 % of them is about 24 % of all points).
-    """
-    rng = np.random.default_rng(seed)
-    W = np.array(tracks, dtype=float)
-    F, J = W.shape[:2]
-    if fraction <= 0:
-        return W
-    if mode == "random":
-        W[rng.random((F, J)) < fraction] = np.nan
-        return W
-    limbs = [[chain.joint_index(j) for j in limb] for limb in _LIMBS if all(j in chain for j in limb)]
-    span = max(int(round(fps)), 1)
-    gone = np.zeros((F, J), bool)
-    cols = sorted({j for limb in limbs for j in limb})
-    for _ in range(10_000):
-        if not limbs or gone[:, cols].mean() >= fraction:
-            break
-        limb = limbs[rng.integers(len(limbs))]
-        start = int(rng.integers(0, max(F - span, 1)))
-        gone[start:start + span, limb] = True
-    W[gone] = np.nan
-    return W
-
-
-def run_robustness(*, quick: bool = False, progress: Callable[[str], None] | None = None,
-                   noise_levels: Sequence[float] = (0.0, 1.0, 2.0, 5.0, 10.0),
-                   missing: Sequence[float] = (0.0, 0.1, 0.2, 0.3, 0.5)) -> list[dict[str, Any]]:
-    """3D error of KCS and the default pipeline on the subject-35 walks against pixel noise and
-    against missing data (random points, and whole limbs hidden for a second), 2 px noise with
-    missing data. Rows: {"condition", "level", "kcs", "default" (metres), "runs"}."""
-    from . import datasets
-    from .reconstruct import reconstruct
-
-    chain = datasets.human17()
-    trials = [amc.stem.split("_")[1] for _, amc in datasets.cmu_trials(35)] or ["01", "02"]
-    trials = trials[:3] if quick else trials
-    n_cam = 2 if quick else 5
-    seqs = [datasets.cmu_walk(35, t) for t in trials]
-    conditions = [("noise px", v, "none") for v in noise_levels]
-    conditions += [("random missing", v, "random") for v in missing]
-    conditions += [("limbs hidden", v, "limbs") for v in missing if v > 0]
-    rows = []
-    for name, level, mode in conditions:
-        acc: dict[str, list[float]] = {"kcs": [], "default": []}
-        for i, X in enumerate(seqs):
-            for cam in range(n_cam):
-                seed = _seed("robust", i, cam)
-                P = orbit_cameras(len(X), scale=scale_for_span(X, SPAN_PX), seed=seed)
-                noise = level if mode == "none" else 2.0
-                W = observe(X, P, translations=[IMAGE_HEIGHT_PX / 2] * 2, noise_px=noise, seed=seed + 1)
-                if mode != "none":
-                    W = hide_points(W, chain, level, mode=mode, seed=seed + 2)
-                for method in acc:
-                    with warnings.catch_warnings():
-                        warnings.simplefilter("ignore")
-                        try:
-                            acc[method].append(error_3d(reconstruct(W, chain, method=method).poses, X))
-                        except ChainspaceError:
-                            acc[method].append(np.nan)
-        rows.append({"condition": name, "level": level, "runs": len(acc["kcs"]),
-                     **{m: float(np.nanmean(v)) for m, v in acc.items()}})
-        if progress:
-            progress(f"{name} {level:g}: default {rows[-1]['default'] * 1000:.1f} mm")
-    return rows
-
-
-def format_robustness(rows: Sequence[dict[str, Any]]) -> str:
-    """Markdown table of :func:`run_robustness` (mm; ratio = default / default on full data)."""
-    lines = ["| condition | level | runs | KCS mm | default mm | default / 2 px full data |",
-             "|---|---:|---:|---:|---:|---:|"]
-    ref = next((r["default"] for r in rows if r["condition"] == "random missing" and r["level"] == 0), None)
-    for r in rows:
-        lvl = f"{r['level']:g}" if r["condition"] == "noise px" else f"{r['level']:.0%}"
-        ratio = f"{r['default'] / ref:.2f}" if ref and r["condition"] != "noise px" else "-"
-        lines.append(f"| {r['condition']} | {lvl} | {r['runs']} | {r['kcs'] * 1000:.1f} | "
-                     f"{r['default'] * 1000:.1f} | {ratio} |")
-    lines.append("")
-    lines.append("CMU subject-35 walks, human17 rest pose as the initial pose; missing-data rows at 2 px noise; "
-                 "'limbs hidden' levels are fractions of the limb joints' points, hidden one second at a time.")
     return "\n".join(lines)

@@ -180,7 +180,7 @@ def _gauss_newton_step(G, H, c0, s, R, cost, lam):
     Gy = sum w y y^T and Hy (no per-frame matrix products).
     """
     Gy, Hy = _moments(G, H, R)
-    g00, g01, g02 = Gy[:, 0, 0], Gy[:, 0, 1], Gy[:, 0, 2]
+    g00, g02 = Gy[:, 0, 0], Gy[:, 0, 2]
     g11, g12, g22 = Gy[:, 1, 1], Gy[:, 1, 2], Gy[:, 2, 2]
     s2 = s * s
     F = len(s)

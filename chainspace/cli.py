@@ -383,8 +383,7 @@ def view(
 _SUITES = {
     "reconstruction": [("benchmark", "run_benchmark", "format_table")],
     "speed": [("benchmark", "run_speed", "format_speed")],
-    "robustness": [("benchmark_robustness", "run_robustness", "format_robustness"),
-                   ("benchmark", "run_robustness", "format_robustness")],
+    "robustness": [("benchmark_robustness", "run_robustness", "format_robustness")],
     "robots": [("benchmark_robots", "run_robot_benchmark", "format_robot_table")],
 }
 
