@@ -46,8 +46,8 @@ _EXPORTS: dict[str, str] = {
     "load_tracks": "tracks",
     "save_tracks": "tracks",
     # reconstruction
-    "reconstruct": "reconstruct",
-    "Reconstruction": "reconstruct",
+    "reconstruct": "reconstruction",
+    "Reconstruction": "reconstruction",
     "fit_cameras": "camera",
     "project": "camera",
     # metrics and synthetic views
@@ -62,8 +62,8 @@ _EXPORTS: dict[str, str] = {
     "JointFit": "fit",
     "synthesize": "robot_synthetic",
     "RobotTrial": "robot_synthetic",
-    "validate": "validate",
-    "ValidationReport": "validate",
+    "validate": "validation",
+    "ValidationReport": "validation",
     # results, views, plots
     "save_results": "results",
     "load_results": "results",

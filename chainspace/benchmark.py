@@ -97,7 +97,7 @@ def sequence_groups(names: Iterable[str] | None = None, *, quick: bool = False) 
 def evaluate_sequence(poses: np.ndarray, chain: Any, *, noise_px: float, seed: int,
                       columns: Sequence[str] = COLUMNS) -> dict[str, tuple[float, float, float]]:
     """Errors (rigid m, similarity m, seconds) of every column on one sequence and one camera path."""
-    from .reconstruct import reconstruct
+    from .reconstruction import reconstruct
 
     F = len(poses)
     P = orbit_cameras(F, scale=scale_for_span(poses, SPAN_PX), seed=seed)
@@ -186,7 +186,7 @@ def run_speed(sizes: Sequence[int] = (100, 1_000, 10_000, 100_000), *, quick: bo
     with its CPU time): on a shared machine the fastest run is the one least slowed by others.
     """
     from .datasets import human17
-    from .reconstruct import reconstruct
+    from .reconstruction import reconstruct
     from .synthetic import swing_motion
 
     def timed(W, chain, method):

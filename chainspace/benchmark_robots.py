@@ -50,7 +50,7 @@ def robot_chain(name: str):
 
 def _trial_errors(fit: Any, trial: Any) -> tuple[float, float]:
     """(worst per-joint RMS degrees over judged joints, mean 3D error of the fitted robot in metres)."""
-    from .validate import validate
+    from .validation import validate
 
     rep = validate(fit, trial.q, truth_positions=trial.positions)
     judged = [j["rms"] for j in rep.joints if j["judged"] and j["rms"] is not None]
@@ -67,7 +67,7 @@ def run_robot_benchmark(quick: bool = False, progress: Callable[[str], None] | N
     n_frames, seeds, unobservable (joint names).
     """
     from .fit import RobotKinematics, fit_joint_angles
-    from .reconstruct import reconstruct
+    from .reconstruction import reconstruct
     from .robot_synthetic import synthesize
 
     n_frames = n_frames or (100 if quick else 300)

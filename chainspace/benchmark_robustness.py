@@ -150,7 +150,7 @@ def _observe_walk(X: np.ndarray, key: str, cam: int, noise_px: float) -> np.ndar
 
 
 def _reconstruct(W: np.ndarray, chain: Any) -> Any:
-    from .reconstruct import reconstruct
+    from .reconstruction import reconstruct
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -232,7 +232,7 @@ def _sweep_arm(quick: bool, n_seeds: int, n_frames: int, base_noise: float,
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    from .reconstruct import reconstruct
+                    from .reconstruction import reconstruct
 
                     rec = reconstruct(W, trial.chain, confidence=conf)
                     fit = fit_joint_angles(rec)

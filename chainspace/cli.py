@@ -210,7 +210,7 @@ def reconstruct(
     reconstruction.json (convergence, errors, timings) into --out. Exit code 1 if it did not converge.
     """
     from .descriptions import load_chain
-    from .reconstruct import reconstruct as run
+    from .reconstruction import reconstruct as run
     from .results import save_results
     from .tracks import load_tracks
 
@@ -269,7 +269,7 @@ def fit(
     else:
         if urdf_path is None:
             raise TrackError("fitting 2D tracks needs --urdf")
-        from .reconstruct import reconstruct as run
+        from .reconstruction import reconstruct as run
         from .tracks import load_tracks
 
         kc = load_chain(urdf_path)
@@ -319,7 +319,7 @@ def validate(
     """Validate a joint-angle fit: per-joint angle errors against the truth, reprojection error, and
     bone lengths against the URDF. Prints the report table; exit code 1 if validation failed."""
     from .results import load_results, save_results
-    from .validate import validate as run
+    from .validation import validate as run
 
     if out is not None:
         _check_outputs([out / "validation.json", out / "validation.md"], overwrite)

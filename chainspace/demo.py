@@ -64,12 +64,12 @@ def run_demo(out_dir: str | Path, *, overwrite: bool = False, progress: bool | C
     """
     from .descriptions import shipped_path
     from .fit import fit_joint_angles
-    from .reconstruct import reconstruct
+    from .reconstruction import reconstruct
     from .results import check_writable, save_results
     from .robot_synthetic import synthesize
     from .tracks import load_tracks, save_tracks
     from .urdf import from_urdf
-    from .validate import validate
+    from .validation import validate
 
     out = Path(out_dir)
     if out.exists() and not out.is_dir():

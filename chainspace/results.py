@@ -5,9 +5,9 @@ in the target's folder, which is renamed over the target only once it is complet
 leaves the old file (or no file) in place, never half a file. An existing file is replaced only when
 ``overwrite=True`` (``--overwrite`` on the command line).
 
-:func:`save_results` writes a reconstruction (:class:`chainspace.reconstruct.Reconstruction`), a
+:func:`save_results` writes a reconstruction (:class:`chainspace.reconstruction.Reconstruction`), a
 robot joint-angle fit (:class:`chainspace.fit.JointFit`) or a validation report
-(:class:`chainspace.validate.ValidationReport`) as
+(:class:`chainspace.validation.ValidationReport`) as
 
 * ``<stem>.npz``: every array, loadable with :func:`load_results`;
 * ``<stem>.csv``: a table (3D joint positions ``frame,joint,x,y,z`` in metres, or the joint angles
@@ -351,7 +351,7 @@ def _rebuild(kind: str, data: dict[str, np.ndarray], summary: dict, chain: Any) 
     """The original dataclass (Reconstruction or JointFit) from saved fields, or None if unavailable."""
     try:
         if kind == "reconstruction":
-            from .reconstruct import Reconstruction as cls
+            from .reconstruction import Reconstruction as cls
         else:
             from .fit import JointFit as cls
     except ImportError:
@@ -377,7 +377,7 @@ def _rebuild(kind: str, data: dict[str, np.ndarray], summary: dict, chain: Any) 
 def load_results(path: str | os.PathLike) -> Any:
     """Read an NPZ written by :func:`save_results` back (a folder holding one NPZ works too).
 
-    Returns the saved object, a :class:`~chainspace.reconstruct.Reconstruction` or a
+    Returns the saved object, a :class:`~chainspace.reconstruction.Reconstruction` or a
     :class:`~chainspace.fit.JointFit`, with its chain rebuilt from the saved joint and bone names
     and metadata (a URDF chain's ``q_rest`` and extra frames, as JSON: lists for arrays and tuples).
     Should the class be unavailable, a namespace with the same attributes plus ``kind`` is returned.

@@ -90,7 +90,7 @@ def test_zero_length_bone_is_a_valid_description_but_not_a_valid_initial_pose():
     """Decision (with H1's chain and H3's reconstruct): descriptions may have coincident points (a
     spherical wrist, an ASF bone of length 0); a reconstruction needs every bone of its initial pose
     to have a length, and says which one has none."""
-    from chainspace.reconstruct import reconstruct
+    from chainspace.reconstruction import reconstruct
 
     rest = [[0, 0, 0], [0, 0, 0.5], [0, 0, 0.5], [0.3, 0, 0.5]]
     chain = KinematicChain(["root", "a", "b", "c"], [("root", "a"), ("a", "b"), ("a", "c")], rest)
@@ -298,7 +298,7 @@ def test_urdf_bad_options(arm_urdf, kwargs, match):
 def test_urdf_with_one_link_is_a_one_point_chain(tmp_path):
     """BUGS.md F1 (fixed): a URDF without joints crashed in point_positions."""
     from chainspace import from_urdf
-    from chainspace.reconstruct import reconstruct
+    from chainspace.reconstruction import reconstruct
 
     path = tmp_path / "one.urdf"
     path.write_text('<robot name="r"><link name="only"/></robot>')
@@ -449,7 +449,7 @@ def walk(human):
 
 
 def _reconstruct(*args, **kwargs):
-    from chainspace.reconstruct import reconstruct
+    from chainspace.reconstruction import reconstruct
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
@@ -572,7 +572,7 @@ def test_reconstruct_accepts_tracks_in_any_reasonable_unit(human, walk):
 # -------------------------------------------------------------------------------- non-convergence
 @pytest.mark.parametrize("method", ["kcs", "default"])
 def test_non_convergence_is_a_flagged_result_with_a_warning(human, walk, method):
-    from chainspace.reconstruct import reconstruct
+    from chainspace.reconstruction import reconstruct
 
     with pytest.warns(ConvergenceWarning, match="iteration limit"):
         rec = reconstruct(walk[1], human, method=method, max_iter=1, tol=1e-15)

@@ -178,3 +178,15 @@ def test_bad_rigid_links_raise(rigid, message):
 def test_joint_index_names_the_unknown_joint_with_a_hint(chain):
     with pytest.raises(DescriptionError, match=r"unknown joint 'l_wrist'.*did you mean 'l_wri'"):
         chain.joint_index("l_wrist")
+
+
+def test_public_functions_stay_functions_after_their_modules_load():
+    # A submodule import binds the package attribute of the same name; no public function may share
+    # its name with a submodule, or `chainspace.reconstruct` would become the module.
+    import importlib
+
+    import chainspace
+
+    for name, module in chainspace._EXPORTS.items():
+        importlib.import_module(f"chainspace.{module}")
+        assert getattr(chainspace, name) is getattr(importlib.import_module(f"chainspace.{module}"), name), name

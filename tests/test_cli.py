@@ -164,7 +164,7 @@ def test_validate_exit_code_follows_the_report(monkeypatch, tmp_path, passed):
         def to_dict(self):
             return {"passed": self.passed, "joints": [{"name": "j1", "rms_deg": 0.1, "max_deg": 0.2}]}
 
-    _fake_module(monkeypatch, "validate", validate=Report)
+    _fake_module(monkeypatch, "validation", validate=Report)
     fit_file = _saved_fit(tmp_path)
     np.save(tmp_path / "truth.npy", np.full((20, 2), 0.5))
     result = runner.invoke(app, ["validate", str(fit_file), "--truth", str(tmp_path / "truth.npy"), "--out",

@@ -539,7 +539,7 @@ def track_arrays(draw):
 @given(W=track_arrays(), conf=st.sampled_from([None, None, "uniform", "nan", "out_of_range", "wrong_shape"]),
        method=st.sampled_from(["default", "kcs", "rigid"]), seed=st.integers(0, 1000))
 def test_fuzz_reconstruct_tracks(W, conf, method, seed):
-    from chainspace.reconstruct import reconstruct
+    from chainspace.reconstruction import reconstruct
 
     rng = np.random.default_rng(seed)
     c = None
@@ -566,7 +566,7 @@ def test_fuzz_reconstruct_tracks(W, conf, method, seed):
        method=st.sampled_from(["default", "kcs"]))
 def test_fuzz_reconstruct_valid_options(max_iter, tol, n_basis, method):
     """Any valid solver option gives a finite result (invalid ones: BUGS.md #1, in test_bad_inputs)."""
-    from chainspace.reconstruct import reconstruct
+    from chainspace.reconstruction import reconstruct
     from chainspace.synthetic import observe, orbit_cameras, swing_motion
 
     X = swing_motion(CHAIN, 12, seed=1)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from chainspace import ConvergenceWarning, KinematicChain, TrackError
-from chainspace.reconstruct import Reconstruction, reconstruct
+from chainspace.reconstruction import Reconstruction, reconstruct
 from chainspace.datasets import human17
 from chainspace.metrics import error_3d
 from chainspace.synthetic import observe, orbit_cameras, swing_motion

@@ -117,7 +117,7 @@ def test_save_results_rejects_unknown_objects(tmp_path):
 
 
 def test_real_reconstruction_round_trip(tmp_path):
-    rec_mod = pytest.importorskip("chainspace.reconstruct")
+    rec_mod = pytest.importorskip("chainspace.reconstruction")
     datasets = pytest.importorskip("chainspace.datasets")
     synthetic = pytest.importorskip("chainspace.synthetic")
     chain, poses = datasets.human17(), datasets.cmu_walk(35, 1)[:40]

@@ -10,7 +10,7 @@ from chainspace.errors import ChainspaceError
 from chainspace.fit import fit_joint_angles
 from chainspace.robot_synthetic import synthesize
 from chainspace.urdf import from_urdf
-from chainspace.validate import validate
+from chainspace.validation import validate
 
 URDF = Path(__file__).resolve().parents[1] / "robots" / "milling_arm.urdf"
 

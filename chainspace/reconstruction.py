@@ -463,18 +463,6 @@ def _result(W, c, given, chain, method, poses, P, t, converged, n_iter, message,
                           int(n_iter), message, history, timings)
 
 
-class _CallableModule(type(sys)):
-    """``chainspace.reconstruct`` is both this module and its main function: importing the module
-    (``from chainspace.reconstruct import ...``) makes Python bind the package attribute
-    ``chainspace.reconstruct`` to the module, so the module forwards calls to the function."""
-
-    def __call__(self, *args: Any, **kwargs: Any) -> Reconstruction:
-        return reconstruct(*args, **kwargs)
-
-
-sys.modules[__name__].__class__ = _CallableModule
-
-
 def _prior_parents(chain: KinematicChain) -> np.ndarray:
     """(n_bones,) for each bone the bone before it when its parent joint has exactly one child (a
     knee, an elbow: the prior keeps the bend relative to that bone), else -1 (a branching joint such
