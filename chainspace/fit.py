@@ -718,6 +718,52 @@ def _initial_view(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np
     return _View(S[best:best + 1], Rs[best][None], T[best][None], np.zeros(F, int))
 
 
+def _initial_camera(robot: RobotKinematics, u: np.ndarray, w: np.ndarray, free: np.ndarray,
+                    n_frames: int = 6, rounds: int = 3) -> tuple[_View, np.ndarray]:
+    """A static weak-perspective camera found from the 2D tracks u (F, J, 2) alone, by trying rotations.
+
+    The same search as :func:`_initial_view`, in the image: scale from the links' longest projections
+    (a link is never seen longer than it is), translation from the root, rotations over SO(3); a few
+    rounds of per-frame IK and closed-form camera refits on ``n_frames`` frames; the candidate with
+    the lowest reprojection error wins. A poor monocular reconstruction (robots near singular poses)
+    no longer decides the camera. Returns (view for all F frames, q (F, nq) from the best candidate's
+    first frame).
+    """
+    F = len(u)
+    x_rest = robot.positions(robot.q_rest)[0]
+    seen = w > 0
+    links = [(robot.chain.joint_index(a), robot.chain.joint_index(b)) for a, b in robot.chain.links]
+    L_mod = np.array([np.linalg.norm(x_rest[b] - x_rest[a]) for a, b in links])
+    ratio = [np.percentile(np.linalg.norm(u[:, b] - u[:, a], axis=-1)[seen[:, a] & seen[:, b]], 95) / L
+             for (a, b), L in zip(links, L_mod) if L > 1e-2 * L_mod.max() and (seen[:, a] & seen[:, b]).sum() > 3]
+    s = float(np.median(ratio)) if ratio else 1.0
+    r = robot.chain.joint_index(robot.chain.root)
+    good = np.flatnonzero(seen.sum(1) >= 3)
+    frames = (good if len(good) else np.arange(F))[np.unique(np.linspace(0, max(len(good), 1) - 1,
+                                                                          n_frames).round().astype(int))]
+    Rs = _rotation_candidates(24, 4)
+    root_u = np.median(u[seen[:, r], r], axis=0) if seen[:, r].any() else np.nanmedian(u.reshape(-1, 2), 0)
+    n_c, n_f = len(Rs), len(frames)
+    S, T = np.full(n_c, s), root_u - s * (Rs @ x_rest[r])[:, :2]
+    idx = np.tile(frames, n_c)
+    uz = np.nan_to_num(u)
+    q = _seeded(robot, np.broadcast_to(robot.q_rest, (len(idx), robot.nq)), free[idx])
+    for k in range(rounds):
+        cand = _View(np.repeat(S, n_f), np.repeat(Rs, n_f, 0), np.repeat(T, n_f, 0), np.arange(n_c * n_f))
+        q, _, rn, pos, _, _ = _sequence_lm(robot, q, uz[idx], w[idx], cand, free[idx], np.zeros(6, bool),
+                                           15, 1e-6, None)
+        if k + 1 < rounds:  # refit each candidate's camera to its own IK solutions
+            pos = pos.reshape(n_c, n_f, -1, 3)
+            for c in range(n_c):
+                v = _camera_view(pos[c], uz[frames], w[frames], False)
+                S[c], Rs[c], T[c] = v.S[0], v.R[0], v.T[0]
+    err = np.sqrt((w[idx] * rn ** 2).sum(1) / np.maximum(w[idx].sum(1), 1e-300)).reshape(n_c, n_f)
+    best = int(np.argmin(np.median(err, axis=1)))
+    q0 = q.reshape(n_c, n_f, -1)[best, 0]
+    return _View(S[best:best + 1], Rs[best][None], T[best][None], np.zeros(F, int)), \
+        np.array(np.broadcast_to(q0, (F, robot.nq)))
+
+
 def _branch_near_rest(robot: RobotKinematics, Y: np.ndarray, w: np.ndarray, view: _View, free: np.ndarray,
                       q_now: np.ndarray, gauge: np.ndarray, n_seeds: int = 48, seed: int = 0) -> np.ndarray:
     """Of the joint angles that fit one frame's points Y (J, 3) equally well, the nearest the rest pose.
@@ -826,6 +872,52 @@ def _repair_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, 
     return q
 
 
+def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
+                      free: np.ndarray, sigma: float, n_random: int = 8, step: float = 0.1,
+                      seed: int = 0) -> np.ndarray:
+    """The sequence's branch, chosen globally: per frame a few IK solutions under the fixed view(s)
+    (from the current path, the rest pose and random configurations, batched), then the path through
+    them with the lowest total cost by dynamic programming (Viterbi), as the reconstruction chooses
+    its depth signs.
+
+    A wrong branch in some frames (an elbow or wrist mirrored where the projections tie) is a local
+    minimum of the smooth sequence objective that no local step leaves; the choice here is global.
+    Cost: squared residuals over sigma^2 (pixel noise, D-space units) per frame, plus the squared
+    joint step between consecutive frames over ``step``^2 (rad; robots move far less per frame), plus
+    a whisker of distance to the rest pose that only decides exact ties. Returns q (F, nq).
+    """
+    F, nq = q.shape
+    rng = np.random.default_rng(seed)
+    lo = np.where(robot.limited, np.maximum(robot.lower, -np.pi), -np.pi)
+    hi = np.where(robot.limited, np.minimum(robot.upper, np.pi), np.pi)
+    held_q = np.zeros((F, nq), bool)  # entries held in a frame keep their value in every start
+    vq = robot.v_of_q >= 0
+    held_q[:, vq] = ~free[:, robot.v_of_q[vq]]
+    rand = robot.clip(rng.uniform(lo, hi, (n_random, nq))) if robot.euclidean else \
+        np.broadcast_to(robot.q_rest, (n_random, nq))
+    starts = [q, _seeded(robot, q, free)] + [np.where(held_q, q, r) for r in rand]
+    K = len(starts)
+    q0 = np.concatenate(starts)
+    idx = np.tile(np.arange(F), K)
+    qs, _, rn, _, _, _ = _sequence_lm(robot, q0, target[idx], w[idx], view.take(idx), free[idx],
+                                      np.zeros(4 + target.shape[-1], bool), 30, 1e-8, None)
+    qs = qs.reshape(K, F, nq)
+    data = (w[idx] * rn ** 2).sum(1).reshape(K, F) / max(sigma, 1e-12) ** 2
+    data += 1e-3 * np.abs(_wrapped(robot, qs - robot.q_rest)).sum(-1)
+    back = np.zeros((F, K), int)
+    acc = data[:, 0].copy()
+    for f in range(1, F):  # a loop over frames: the recursion is sequential, each step is (K, K)
+        trans = (_wrapped(robot, qs[None, :, f] - qs[:, None, f - 1]) ** 2).sum(-1) / step ** 2  # (from, to)
+        tot = acc[:, None] + trans
+        back[f] = np.argmin(tot, 0)
+        acc = tot[back[f], np.arange(K)] + data[:, f]
+    k = np.empty(F, int)
+    k[-1] = int(np.argmin(acc))
+    for f in range(F - 1, 0, -1):
+        k[f - 1] = back[f, k[f]]
+    return qs[k, np.arange(F)]
+
+
 def _fit_3d(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np.ndarray, transform: str,
             max_iter: int, tol: float, gauge: np.ndarray, rounds: int = 5) -> tuple[np.ndarray, _View, int]:
     """Joint angles and one view onto the 3D points X (F, J, 3).
@@ -880,6 +972,33 @@ def _structural(robot: RobotKinematics, w: np.ndarray, seed: int = 0) -> tuple[n
     return blind, gauge
 
 
+def _unseen(robot: RobotKinematics, w: np.ndarray, seed: int = 0) -> np.ndarray:
+    """(F, nv) directions that move no point seen in that frame (w (F, J) > 0): the data say nothing
+    about them there, so they are held and later interpolated from the neighbouring frames."""
+    rng = np.random.default_rng(seed)
+    lo = np.where(robot.limited, robot.lower, -np.pi)
+    hi = np.where(robot.limited, robot.upper, np.pi)
+    qs = robot.clip(np.where(robot.v_of_q >= 0, rng.uniform(lo, hi, (3, robot.nq)), robot.q_rest))
+    pos, jac = robot.jacobians(qs)
+    ext = max(np.linalg.norm(pos - pos.mean(1, keepdims=True), axis=-1).max(), 1e-9)
+    moves = np.linalg.norm(jac, axis=2).max(0) > 1e-9 * ext  # (J, nv) structural support
+    return ~((w > 0).astype(float) @ moves.astype(float) > 0)
+
+
+def _fill_unseen(robot: RobotKinematics, q: np.ndarray, unseen: np.ndarray) -> np.ndarray:
+    """q (F, nq) with each direction's unseen frames linearly interpolated (unwrapped) from its seen ones."""
+    q = q.copy()
+    f = np.arange(len(q))
+    for v in np.flatnonzero(unseen.any(0) & ~unseen.all(0)):
+        qi = robot.q_of_v[v]
+        if qi < 0:
+            continue
+        ok = ~unseen[:, v]
+        vals = np.unwrap(q[ok, qi]) if robot.revolute[qi] else q[ok, qi]
+        q[~ok, qi] = np.interp(f[~ok], f[ok], vals)
+    return robot.clip(q)
+
+
 def _gauge_directions(x: np.ndarray, jac: np.ndarray, w: np.ndarray, P: np.ndarray | None, per_frame: bool,
                       tol: float = 1e-3) -> np.ndarray:
     """(nv,) directions whose motion of the tracked points a change of view imitates exactly.
@@ -925,11 +1044,12 @@ def _prefer_rest(robot: RobotKinematics, cands: list[dict], key: str, blind: np.
         return float(np.abs(d).mean()) if d.size else 0.0
 
     tied.sort(key=distance)
-    return tied + [c for c in cands if c not in tied]
+    tied_ids = {id(c) for c in tied}  # identity: `in` would compare the dicts' arrays
+    return tied + [c for c in cands if id(c) not in tied_ids]
 
 
 def _hold(robot: RobotKinematics, q: np.ndarray, blind: np.ndarray, gauge: np.ndarray,
-          per_frame: bool) -> tuple[np.ndarray, np.ndarray]:
+          per_frame: bool, unseen: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Hold blind directions at rest in every frame; gauge directions at rest in frame 0 (shifting the
     whole sequence, which a view change undoes) or, with per-frame views, at their current values.
     Returns (q, free (F, nv))."""
@@ -947,6 +1067,9 @@ def _hold(robot: RobotKinematics, q: np.ndarray, blind: np.ndarray, gauge: np.nd
             free[0, v] = False
             if qi >= 0:
                 q[:, qi] += robot.q_rest[qi] - q[0, qi]
+    if unseen is not None:  # directions no seen point moves in a frame: held there (at their neighbours')
+        free &= ~unseen
+        q = _fill_unseen(robot, q, unseen & ~(blind | gauge))
     return robot.clip(q), free
 
 
@@ -1104,6 +1227,12 @@ def fit_joint_angles(
         raise DescriptionError(f"transform must be 'similarity', 'rigid' or 'none', not {transform!r}")
     if not (isinstance(max_iter, (int, np.integer)) and max_iter > 0):
         raise DescriptionError(f"max_iter must be a positive integer, not {max_iter!r}")
+    if not (isinstance(tol, (int, float, np.integer, np.floating)) and not isinstance(tol, bool)
+            and np.isfinite(tol) and tol >= 0):
+        raise DescriptionError(f"tol must be a finite number >= 0, not {tol!r}")
+    if loss_scale_px is not None and not (isinstance(loss_scale_px, (int, float, np.integer, np.floating))
+                                          and np.isfinite(loss_scale_px) and loss_scale_px >= 0):
+        raise DescriptionError(f"loss_scale_px must be a finite number of pixels >= 0 or None, not {loss_scale_px!r}")
     poses, chain, urdf, tracks, confidence = _inputs(rec_or_poses, urdf, chain, tracks, confidence)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -1117,7 +1246,9 @@ def fit_joint_angles(
 
     # ---- step 1: 3D, both mirror images. Blind directions are known before fitting.
     blind, gauge0 = _structural(robot, w3)
-    _, free_blind = _hold(robot, np.broadcast_to(robot.q_rest, (F, robot.nq)), blind, blind & False, False)
+    unseen3 = _unseen(robot, w3)
+    _, free_blind = _hold(robot, np.broadcast_to(robot.q_rest, (F, robot.nq)), blind, blind & False, False,
+                          unseen3)
     free_sim = np.array([transform != "none"] * 3 + [transform == "similarity"] + [transform != "none"] * 3)
     candidates, n_iter = [], 0
     for sign in ((1.0, -1.0) if mirror and transform == "similarity" else (1.0,)):
@@ -1128,7 +1259,7 @@ def fit_joint_angles(
         if transform != "none":
             pos, jac = robot.jacobians(q)
             gauge = _gauge_directions(pos, jac, w3, None, False) & ~blind
-            q, free = _hold(robot, q, blind, gauge, False)
+            q, free = _hold(robot, q, blind, gauge, False, unseen3)
             view = _align(robot.positions(q), X, w3, transform)  # the hold turned the robot: turn the view back
         q, view, rn, pos, conv, it = _sequence_lm(robot, q, X, w3, view, free, free_sim,
                                                   max_iter if tracks is None or not refine else 10, tol, None)
@@ -1151,14 +1282,15 @@ def fit_joint_angles(
             raise TrackError(f"the tracks have {int((w2 > 0).sum())} usable points; the camera needs at least 6")
         # image-size tolerance for exact data: a thousandth of the tracks' extent (0.8 px at 800 px)
         px_floor = 1e-3 * float(max(np.ptp(tracks[..., 0][w2 > 0]), np.ptp(tracks[..., 1][w2 > 0])))
+        unseen2 = _unseen(robot, w2)
 
         def refine_2d(c):
             nonlocal n_iter
             P0, _ = _affine_camera(c["pos"], tracks, w2, per_frame)
             pos, jac = robot.jacobians(c["q"])
             g2 = (_gauge_directions(pos, jac, w2, P0, per_frame) | c["gauge"]) & ~blind
-            q, free = _hold(robot, c["q"], blind, g2 if per_frame else c["gauge"], per_frame)
-            view = _camera_view(c["pos"], tracks, w2, per_frame)
+            q, free = _hold(robot, c["q"], blind, g2 if per_frame else c["gauge"], per_frame, unseen2)
+            view = c["camera0"] if "camera0" in c else _camera_view(c["pos"], tracks, w2, per_frame)
             # per-frame IK on the tracks with this camera (robust far from the solution), then all together
             q = _sequential_ik(robot, tracks, w2, view, free, q[0], c["gauge"])
             for _ in range(4):  # alternate the closed-form camera(s) with per-frame IK
@@ -1171,6 +1303,13 @@ def fit_joint_angles(
             delta = (_robust_scale(rn0, w2, px_floor) if loss_scale_px is None else
                      (float(loss_scale_px) if loss_scale_px > 0 else None))
             out = _sequence_lm(robot, q, tracks, w2, view, free, np.ones(6, bool), max_iter, tol, delta)
+            for _ in range(2):  # the branch of every frame, chosen for the whole sequence
+                sig = max(float(np.median(out[2][w2 > 0])) / 1.1774, px_floor)
+                q_fix = _viterbi_branches(robot, out[0], tracks, w2, out[1], free, sig)
+                if np.abs(_wrapped(robot, q_fix - out[0])).max() < 0.05:
+                    break
+                out = _sequence_lm(robot, q_fix, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol, delta)
+            # where the data cannot choose (a wrist mirrored about points on its axes), the rest pose's branch
             q_fix = _repair_branches(robot, out[0], tracks, w2, out[1], free, c["gauge"])
             if not np.array_equal(q_fix, out[0]):
                 out = _sequence_lm(robot, q_fix, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol, delta)
@@ -1183,7 +1322,14 @@ def fit_joint_angles(
             return view_from is not None and (r["down"] < -0.02 if view_from == "above" else r["down"] > 0.02)
 
         # both mirror images: a poor reconstruction may favour the wrong one in 3D
-        results = _prefer_rest(robot, [refine_2d(c) for c in candidates], "cost", blind, 0.05 * px_floor)
+        results = [refine_2d(c) for c in candidates]
+        if not per_frame and transform == "similarity" and min(r["cost"] for r in results) > 2 * px_floor:
+            # the tracks are fitted poorly from the reconstruction's start: also a camera found from the
+            # tracks alone (costly, so only then)
+            v2, q2 = _initial_camera(robot, tracks, w2, _hold(robot, candidates[0]["q"], blind, candidates[0]["gauge"],
+                                                              False)[1])
+            results.append(refine_2d(dict(candidates[0], q=q2, pos=robot.positions(q2), camera0=v2)))
+        results = _prefer_rest(robot, results, "cost", blind, 0.05 * px_floor)
         mirror_tied = len(results) > 1 and results[1]["cost"] <= 1.5 * results[0]["cost"] + 0.05 * px_floor
         if mirror_tied and view_from in ("above", "below"):
             sgn = 1 if view_from == "above" else -1
@@ -1195,7 +1341,7 @@ def fit_joint_angles(
             R0 = r0["out"][1].R[0] if not per_frame else r0["out"][1].R.mean(0)
             X_alt = np.einsum("ij,fkj->fki", R0.T @ np.diag([1.0, 1.0, -1.0]) @ R0, r0["out"][3])
             q_a, view_a, it_a = _fit_3d(robot, X_alt, w3, free_blind, transform, max_iter, tol, gauge0)
-            q_a, free_a = _hold(robot, q_a, blind, r0["c"]["gauge"], False)
+            q_a, free_a = _hold(robot, q_a, blind, r0["c"]["gauge"], False, unseen3)
             view_a = _align(robot.positions(q_a), X_alt, w3, transform)
             q_a, view_a, rn_a, pos_a, conv_a, it_b = _sequence_lm(robot, q_a, X_alt, w3, view_a, free_a,
                                                                   free_sim, 20, tol, None)
@@ -1223,6 +1369,10 @@ def fit_joint_angles(
         timings["refine_2d"] = time.perf_counter() - t1
     else:
         q, pos_base = best["q"], best["pos"]
+    unseen = unseen2 if refine and tracks is not None else unseen3
+    if (unseen & ~blind).any():  # the solvers held these; the neighbours' values, interpolated, are better
+        q = _fill_unseen(robot, q, unseen & ~(blind | gauge))
+        pos_base = robot.positions(q)
 
     # ---- report in the reconstruction's frame: X = s R x + t (the mirror folded into R)
     X = best["sign"] * Xz
