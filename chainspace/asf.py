@@ -343,6 +343,10 @@ def _skeleton_of(chain_or_asf) -> tuple[AsfSkeleton, KinematicChain]:
                 f"chain {chain_or_asf.name!r} was not made by from_asf: pass the ASF path to load_amc"
             )
         return skel, chain_or_asf
+    if not isinstance(chain_or_asf, (str, PathLike)):
+        raise DescriptionError(
+            f"load_amc needs a chain made by from_asf or an ASF path, not {type(chain_or_asf).__name__}"
+        )
     chain = from_asf(chain_or_asf)
     return chain.metadata["asf"], chain
 

@@ -142,6 +142,9 @@ def _hierarchy(path: str, lines: list[str]) -> _Skeleton:
             if ch not in _POS and ch not in _ROT:
                 msg = f"joint {bj.Name!r}: unknown channel {ch!r}"
                 raise DescriptionError(located(msg, path, _line_of(lines, bj.Name)))
+        if len(set(bj.Channels)) != len(bj.Channels):
+            msg = f"joint {bj.Name!r}: a channel is listed twice ({' '.join(bj.Channels)})"
+            raise DescriptionError(located(msg, path, _line_of(lines, bj.Name)))
         joints.append(_Joint(bj.Name, parent, np.array(bj.Offset, dtype=float), list(bj.Channels), count))
         count += len(bj.Channels)
         k = len(joints) - 1

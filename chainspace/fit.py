@@ -1284,6 +1284,11 @@ def fit_joint_angles(
         px_floor = 1e-3 * float(max(np.ptp(tracks[..., 0][w2 > 0]), np.ptp(tracks[..., 1][w2 > 0])))
         unseen2 = _unseen(robot, w2)
 
+        def robust_cost(rn):
+            return float((w2 * _huber(rn, delta_used[0])[0]).sum())
+
+        delta_used = [None]
+
         def refine_2d(c):
             nonlocal n_iter
             P0, _ = _affine_camera(c["pos"], tracks, w2, per_frame)
@@ -1302,13 +1307,17 @@ def fit_joint_angles(
             rn0 = np.linalg.norm(view.apply(pos)[0] - np.nan_to_num(tracks), axis=-1)
             delta = (_robust_scale(rn0, w2, px_floor) if loss_scale_px is None else
                      (float(loss_scale_px) if loss_scale_px > 0 else None))
+            delta_used[0] = delta
             out = _sequence_lm(robot, q, tracks, w2, view, free, np.ones(6, bool), max_iter, tol, delta)
             for _ in range(2):  # the branch of every frame, chosen for the whole sequence
                 sig = max(float(np.median(out[2][w2 > 0])) / 1.1774, px_floor)
                 q_fix = _viterbi_branches(robot, out[0], tracks, w2, out[1], free, sig)
                 if np.abs(_wrapped(robot, q_fix - out[0])).max() < 0.05:
                     break
-                out = _sequence_lm(robot, q_fix, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol, delta)
+                new = _sequence_lm(robot, q_fix, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol, delta)
+                if robust_cost(new[2]) > 0.99 * robust_cost(out[2]):
+                    break  # only a clearly better fit of the tracks moves the path: ties keep the smooth solver's
+                out = new
             # where the data cannot choose (a wrist mirrored about points on its axes), the rest pose's branch
             q_fix = _repair_branches(robot, out[0], tracks, w2, out[1], free, c["gauge"])
             if not np.array_equal(q_fix, out[0]):
