@@ -1309,19 +1309,26 @@ def fit_joint_angles(
                      (float(loss_scale_px) if loss_scale_px > 0 else None))
             delta_used[0] = delta
             out = _sequence_lm(robot, q, tracks, w2, view, free, np.ones(6, bool), max_iter, tol, delta)
-            for _ in range(2):  # the branch of every frame, chosen for the whole sequence
+            rms_f = _rms_per_frame(out[2], w2)
+            stuck = np.nanmax(rms_f) > 4 * np.nanmedian(rms_f) + 2 * px_floor  # frames in a local minimum
+            for _ in range(2 if stuck else 0):  # then the branch of every frame, chosen for the whole sequence
                 sig = max(float(np.median(out[2][w2 > 0])) / 1.1774, px_floor)
                 q_fix = _viterbi_branches(robot, out[0], tracks, w2, out[1], free, sig)
                 if np.abs(_wrapped(robot, q_fix - out[0])).max() < 0.05:
                     break
                 new = _sequence_lm(robot, q_fix, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol, delta)
-                if robust_cost(new[2]) > 0.99 * robust_cost(out[2]):
-                    break  # only a clearly better fit of the tracks moves the path: ties keep the smooth solver's
+                worst_old = np.nanmax(_rms_per_frame(out[2], w2))
+                if robust_cost(new[2]) > 0.99 * robust_cost(out[2]) or \
+                        np.nanmax(_rms_per_frame(new[2], w2)) > 1.1 * worst_old + px_floor:
+                    break  # only a clearly better fit of the tracks, in no frame worse, moves the path
                 out = new
             # where the data cannot choose (a wrist mirrored about points on its axes), the rest pose's branch
             q_fix = _repair_branches(robot, out[0], tracks, w2, out[1], free, c["gauge"])
             if not np.array_equal(q_fix, out[0]):
-                out = _sequence_lm(robot, q_fix, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol, delta)
+                new = _sequence_lm(robot, q_fix, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol, delta)
+                # a tie-break between branches the data cannot tell apart: it may not make any frame worse
+                if np.nanmax(_rms_per_frame(new[2], w2)) <= 1.1 * np.nanmax(_rms_per_frame(out[2], w2)) + px_floor:
+                    out = new
             n_iter += out[-1]
             # camera looking down on the base plane: its forward axis (third row, image y down) has z < 0
             return dict(cost=float(np.sqrt((w2 * out[2] ** 2).sum() / w2.sum())), out=out, c=c, g2=g2,
@@ -1332,12 +1339,14 @@ def fit_joint_angles(
 
         # both mirror images: a poor reconstruction may favour the wrong one in 3D
         results = [refine_2d(c) for c in candidates]
-        if not per_frame and transform == "similarity" and min(r["cost"] for r in results) > 2 * px_floor:
+        if not per_frame and transform == "similarity" and min(r["cost"] for r in results) > 3 * px_floor:
             # the tracks are fitted poorly from the reconstruction's start: also a camera found from the
             # tracks alone (costly, so only then)
             v2, q2 = _initial_camera(robot, tracks, w2, _hold(robot, candidates[0]["q"], blind, candidates[0]["gauge"],
                                                               False)[1])
-            results.append(refine_2d(dict(candidates[0], q=q2, pos=robot.positions(q2), camera0=v2)))
+            alt = refine_2d(dict(candidates[0], q=q2, pos=robot.positions(q2), camera0=v2))
+            if alt["cost"] * 1.5 < min(r["cost"] for r in results):  # clearly better, not a tie
+                results.append(alt)
         results = _prefer_rest(robot, results, "cost", blind, 0.05 * px_floor)
         mirror_tied = len(results) > 1 and results[1]["cost"] <= 1.5 * results[0]["cost"] + 0.05 * px_floor
         if mirror_tied and view_from in ("above", "below"):
