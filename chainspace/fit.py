@@ -1325,10 +1325,7 @@ def fit_joint_angles(
             # where the data cannot choose (a wrist mirrored about points on its axes), the rest pose's branch
             q_fix = _repair_branches(robot, out[0], tracks, w2, out[1], free, c["gauge"])
             if not np.array_equal(q_fix, out[0]):
-                new = _sequence_lm(robot, q_fix, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol, delta)
-                # a tie-break between branches the data cannot tell apart: it may not make any frame worse
-                if np.nanmax(_rms_per_frame(new[2], w2)) <= 1.1 * np.nanmax(_rms_per_frame(out[2], w2)) + px_floor:
-                    out = new
+                out = _sequence_lm(robot, q_fix, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol, delta)
             n_iter += out[-1]
             # camera looking down on the base plane: its forward axis (third row, image y down) has z < 0
             return dict(cost=float(np.sqrt((w2 * out[2] ** 2).sum() / w2.sum())), out=out, c=c, g2=g2,
