@@ -702,20 +702,35 @@ def _initial_view(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np
     root_X = np.median(X[seen[:, r], r], axis=0) if seen[:, r].any() else aligned.T[0]
     n_c, n_f = len(Rs), len(frames)
     S, T = np.full(n_c, s), root_X - s * Rs @ x_rest[r]
+    q = np.array(np.broadcast_to(robot.q_seed, (n_c * n_f, robot.nq)))
+    best, _ = _best_candidate_view(robot, q, X, w, free, frames, S, Rs, T, 7, rounds,
+                                   lambda pos: _align(pos, X[frames], w[frames], transform))
+    return _View(S[best:best + 1], Rs[best][None], T[best][None], np.zeros(F, int))
+
+
+def _best_candidate_view(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray,
+                         free: np.ndarray, frames: np.ndarray, S: np.ndarray, Rs: np.ndarray, T: np.ndarray,
+                         n_view: int, rounds: int, realign) -> tuple[int, np.ndarray]:
+    """Index of the candidate view (S, Rs, T, updated in place) whose IK on ``frames`` fits best.
+
+    Every candidate's IK runs in one batched solve from ``q`` ((candidates x frames, nq)); between
+    rounds each candidate's view is re-fitted by ``realign(positions (frames, J, 3))`` to its own IK
+    solutions. ``n_view`` is the number of view parameters (7 for a 3D similarity, 6 for a camera),
+    held fixed here. Returns (best index, q of every candidate and frame).
+    """
+    n_c, n_f = len(Rs), len(frames)
     idx = np.tile(frames, n_c)
-    q = np.array(np.broadcast_to(robot.q_seed, (len(idx), robot.nq)))
     for k in range(rounds):
         cand = _View(np.repeat(S, n_f), np.repeat(Rs, n_f, 0), np.repeat(T, n_f, 0), np.arange(n_c * n_f))
-        q, _, rn, pos, _, _ = _sequence_lm(robot, q, X[idx], w[idx], cand, free[idx], np.zeros(7, bool),
+        q, _, rn, pos, _, _ = _sequence_lm(robot, q, target[idx], w[idx], cand, free[idx], np.zeros(n_view, bool),
                                            15, 1e-6, None)
-        if k + 1 < rounds:  # re-align each candidate's view on its own IK solutions
+        if k + 1 < rounds:
             pos = pos.reshape(n_c, n_f, -1, 3)
             for c in range(n_c):
-                v = _align(pos[c], X[frames], w[frames], transform)
+                v = realign(pos[c])
                 S[c], Rs[c], T[c] = v.S[0], v.R[0], v.T[0]
     err = np.sqrt((w[idx] * rn ** 2).sum(1) / np.maximum(w[idx].sum(1), 1e-300)).reshape(n_c, n_f)
-    best = int(np.argmin(np.median(err, axis=1)))
-    return _View(S[best:best + 1], Rs[best][None], T[best][None], np.zeros(F, int))
+    return int(np.argmin(np.median(err, axis=1))), q
 
 
 def _initial_camera(robot: RobotKinematics, u: np.ndarray, w: np.ndarray, free: np.ndarray,
@@ -748,17 +763,8 @@ def _initial_camera(robot: RobotKinematics, u: np.ndarray, w: np.ndarray, free: 
     idx = np.tile(frames, n_c)
     uz = np.nan_to_num(u)
     q = _seeded(robot, np.broadcast_to(robot.q_rest, (len(idx), robot.nq)), free[idx])
-    for k in range(rounds):
-        cand = _View(np.repeat(S, n_f), np.repeat(Rs, n_f, 0), np.repeat(T, n_f, 0), np.arange(n_c * n_f))
-        q, _, rn, pos, _, _ = _sequence_lm(robot, q, uz[idx], w[idx], cand, free[idx], np.zeros(6, bool),
-                                           15, 1e-6, None)
-        if k + 1 < rounds:  # refit each candidate's camera to its own IK solutions
-            pos = pos.reshape(n_c, n_f, -1, 3)
-            for c in range(n_c):
-                v = _camera_view(pos[c], uz[frames], w[frames], False)
-                S[c], Rs[c], T[c] = v.S[0], v.R[0], v.T[0]
-    err = np.sqrt((w[idx] * rn ** 2).sum(1) / np.maximum(w[idx].sum(1), 1e-300)).reshape(n_c, n_f)
-    best = int(np.argmin(np.median(err, axis=1)))
+    best, q = _best_candidate_view(robot, q, uz, w, free, frames, S, Rs, T, 6, rounds,
+                                   lambda pos: _camera_view(pos, uz[frames], w[frames], False))
     q0 = q.reshape(n_c, n_f, -1)[best, 0]
     return _View(S[best:best + 1], Rs[best][None], T[best][None], np.zeros(F, int)), \
         np.array(np.broadcast_to(q0, (F, robot.nq)))
