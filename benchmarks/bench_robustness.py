@@ -6,8 +6,10 @@ limbs hidden for about a second) on the CMU subject-35 walks and the milling arm
     .venv/bin/python benchmarks/bench_robustness.py --quick       # 3 walks x 1 camera, 1 short arm trial
     .venv/bin/python benchmarks/bench_robustness.py --plots DIR   # also robustness_noise.png, robustness_missing.png
 
-Prints markdown tables and the targets (20 % random missing <= 1.25 x full data; no cliff). Exit code 1
-when a target fails. The walks use ../shared/data when present, else the bundled 35_01 and 35_02.
+Prints markdown tables and the targets (20 % random missing <= 1.25 x full data; no cliff: no step
+between neighbouring levels rising more than 5 mm and either 3 x faster than the sweep's mean slope or
+to more than double the error before it; the rule is printed with the tables). Exit code 1 when a
+target fails. The walks use ../shared/data when present, else the bundled 35_01 and 35_02.
 """
 
 from __future__ import annotations

@@ -183,6 +183,22 @@ class RobotKinematics:
             k = np.where(ok, 0, k)
         return q
 
+    def continuous(self, q: np.ndarray) -> np.ndarray:
+        """A path q (F, nq) without whole-turn jumps between frames: each revolute joint unwrapped along
+        the frames, then moved by whole turns into its limits (the first frame's turn kept where
+        possible). A joint whose unwrapped path does not fit its limits keeps its values."""
+        q = np.array(q, dtype=float)
+        for i in np.flatnonzero(self.revolute):
+            u = np.unwrap(q[:, i])
+            u -= 2 * np.pi * np.round((u[0] - q[0, i]) / (2 * np.pi))
+            if self.limited[i]:
+                u -= 2 * np.pi * np.ceil(max(u.max() - self.upper[i] - 1e-9, 0.0) / (2 * np.pi))
+                u += 2 * np.pi * np.ceil(max(self.lower[i] - u.min() - 1e-9, 0.0) / (2 * np.pi))
+                if u.min() < self.lower[i] - 1e-9 or u.max() > self.upper[i] + 1e-9:
+                    continue
+            q[:, i] = u
+        return q
+
     def integrate(self, q: np.ndarray, dv: np.ndarray) -> np.ndarray:
         """q (F, nq) moved by velocities dv (F, nv), then clipped into the limits."""
         if self.euclidean:
@@ -879,7 +895,7 @@ def _repair_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, 
 
 
 def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
-                      free: np.ndarray, sigma: float, n_random: int = 8, step: float = 0.1,
+                      free: np.ndarray, sigma: float, n_random: int = 8, step: float = 0.1, free_step: float = 0.15,
                       seed: int = 0) -> np.ndarray:
     """The sequence's branch, chosen globally: per frame a few IK solutions under the fixed view(s)
     (from the current path, the rest pose and random configurations, batched), then the path through
@@ -888,9 +904,11 @@ def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray,
 
     A wrong branch in some frames (an elbow or wrist mirrored where the projections tie) is a local
     minimum of the smooth sequence objective that no local step leaves; the choice here is global.
-    Cost: squared residuals over sigma^2 (pixel noise, D-space units) per frame, plus the squared
-    joint step between consecutive frames over ``step``^2 (rad; robots move far less per frame), plus
-    a whisker of distance to the rest pose that only decides exact ties. Returns q (F, nq).
+    Cost: squared residuals over sigma^2 (pixel noise, D-space units) per frame, plus for a joint step
+    between consecutive frames longer than ``free_step`` (rad; 4.5 rad/s at 30 fps, more than robots
+    move) the excess squared over ``step``^2, plus a whisker of distance to the rest pose that decides
+    exact ties: a jump to another branch is costly, while of two continuous paths that fit alike
+    (a wrist's planar tool mirrored in depth) the one nearer the rest pose wins. Returns q (F, nq).
     """
     F, nq = q.shape
     rng = np.random.default_rng(seed)
@@ -901,7 +919,8 @@ def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray,
     held_q[:, vq] = ~free[:, robot.v_of_q[vq]]
     rand = robot.clip(rng.uniform(lo, hi, (n_random, nq))) if robot.euclidean else \
         np.broadcast_to(robot.q_rest, (n_random, nq))
-    starts = [q, _seeded(robot, q, free)] + [np.where(held_q, q, r) for r in rand]
+    starts = [q, _seeded(robot, q, free)] + [np.where(held_q, q, r) for r in rand] + \
+        [np.where(held_q, q, m) for m in _depth_flips(robot, q, view, free)]
     K = len(starts)
     q0 = np.concatenate(starts)
     idx = np.tile(np.arange(F), K)
@@ -913,7 +932,8 @@ def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray,
     back = np.zeros((F, K), int)
     acc = data[:, 0].copy()
     for f in range(1, F):  # a loop over frames: the recursion is sequential, each step is (K, K)
-        trans = (_wrapped(robot, qs[None, :, f] - qs[:, None, f - 1]) ** 2).sum(-1) / step ** 2  # (from, to)
+        jump = np.linalg.norm(_wrapped(robot, qs[None, :, f] - qs[:, None, f - 1]), axis=-1)  # (from, to)
+        trans = (np.maximum(jump - free_step, 0.0) / step) ** 2
         tot = acc[:, None] + trans
         back[f] = np.argmin(tot, 0)
         acc = tot[back[f], np.arange(K)] + data[:, f]
@@ -921,7 +941,35 @@ def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray,
     k[-1] = int(np.argmin(acc))
     for f in range(F - 1, 0, -1):
         k[f - 1] = back[f, k[f]]
-    return qs[k, np.arange(F)]
+    return robot.continuous(qs[k, np.arange(F)])
+
+
+def _depth_flips(robot: RobotKinematics, q: np.ndarray, view: _View, free: np.ndarray) -> list[np.ndarray]:
+    """Starts on the other side of each link's depth ambiguity: per tree link, the configuration whose
+    points best match the current ones with that link and everything beyond it mirrored in depth
+    (about the plane through the link's parent point, facing the camera). A weak-perspective camera
+    sees both alike; the arm beyond a ball-like joint (a 7-axis arm's shoulder, a wrist) can often
+    take the mirrored pose exactly. Random starts rarely land in that basin. (F, nq) each."""
+    F = len(q)
+    pos = robot.positions(q)
+    n = view.R[view.cam_of][:, 2]  # (F, 3) the camera's depth axis in the base frame
+    index = {name: i for i, name in enumerate(robot.chain.joints)}
+    mirrored = []
+    for b, (parent, _) in enumerate(robot.chain.bones):
+        beyond = robot.chain.D[b] != 0
+        depth = np.einsum("fjd,fd->fj", pos[:, beyond] - pos[:, index[parent], None], n)
+        if np.abs(depth).max() < 1e-9:
+            continue
+        m = pos.copy()
+        m[:, beyond] -= 2 * depth[..., None] * n[:, None]
+        mirrored.append(m)
+    if not mirrored:
+        return []
+    K = len(mirrored)
+    eye = _View(np.ones(1), np.eye(3)[None], np.zeros((1, 3)), np.zeros(K * F, int))
+    qs = _sequence_lm(robot, np.tile(q, (K, 1)), np.concatenate(mirrored), np.ones((K * F, pos.shape[1])), eye,
+                      np.tile(free, (K, 1)), np.zeros(7, bool), 20, 1e-6, None)[0]
+    return list(qs.reshape(K, F, -1))
 
 
 def _fit_3d(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np.ndarray, transform: str,
@@ -952,6 +1000,11 @@ def _fit_3d(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np.ndarr
                 break
             prev_rms = rms
     return q, view, n_iter
+
+
+def _roughness(robot: RobotKinematics, q: np.ndarray) -> float:
+    """Sum of squared joint steps between frames (wrapped), rad^2: large where a path jumps branches."""
+    return float((_wrapped(robot, np.diff(q, axis=0)) ** 2).sum())
 
 
 def _wrapped(robot: RobotKinematics, dq: np.ndarray) -> np.ndarray:
@@ -1036,13 +1089,15 @@ def _names_of_v(robot: RobotKinematics) -> list[str]:
 
 
 def _prefer_rest(robot: RobotKinematics, cands: list[dict], key: str, blind: np.ndarray,
-                 floor: float = 0.0) -> list[dict]:
+                 floor: float = 0.0, tie=None) -> list[dict]:
     """Candidates sorted by their error ``key``; among those the data cannot tell apart (error within
-    1.5 times the best plus ``floor``, as a mirror image often fits as well as the truth), the
-    nearest the rest pose (mean absolute joint offset over the fitted, observable joints) comes first."""
+    1.5 times the best plus ``floor``, as a mirror image often fits as well as the truth; or
+    ``tie(best, c)``), the nearest the rest pose (mean absolute joint offset over the fitted,
+    observable joints) comes first."""
     cands = sorted(cands, key=lambda c: c[key])
     best = cands[0][key]
-    tied = [c for c in cands if c[key] <= 1.5 * best + floor + 1e-12]
+    tie = tie or (lambda b, c: c[key] <= 1.5 * b[key] + floor + 1e-12)
+    tied = [c for c in cands if tie(cands[0], c)]
 
     def distance(c):
         seen = ~(blind | c["gauge"])[robot.v_of_q[robot.v_of_q >= 0]]
@@ -1315,18 +1370,25 @@ def fit_joint_angles(
                      (float(loss_scale_px) if loss_scale_px > 0 else None))
             delta_used[0] = delta
             out = _sequence_lm(robot, q, tracks, w2, view, free, np.ones(6, bool), max_iter, tol, delta)
-            rms_f = _rms_per_frame(out[2], w2)
-            stuck = np.nanmax(rms_f) > 4 * np.nanmedian(rms_f) + 2 * px_floor  # frames in a local minimum
-            for _ in range(2 if stuck else 0):  # then the branch of every frame, chosen for the whole sequence
+            for _ in range(2):  # then the branch of every frame, chosen for the whole sequence
                 sig = max(float(np.median(out[2][w2 > 0])) / 1.1774, px_floor)
                 q_fix = _viterbi_branches(robot, out[0], tracks, w2, out[1], free, sig)
                 if np.abs(_wrapped(robot, q_fix - out[0])).max() < 0.05:
                     break
                 new = _sequence_lm(robot, q_fix, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol, delta)
                 worst_old = np.nanmax(_rms_per_frame(out[2], w2))
-                if robust_cost(new[2]) > 0.99 * robust_cost(out[2]) or \
-                        np.nanmax(_rms_per_frame(new[2], w2)) > 1.1 * worst_old + px_floor:
-                    break  # only a clearly better fit of the tracks, in no frame worse, moves the path
+                better = robust_cost(new[2]) <= 0.99 * robust_cost(out[2]) and \
+                    np.nanmax(_rms_per_frame(new[2], w2)) <= 1.1 * worst_old + px_floor
+                # a tie of the tracks (a wrist whose tracked points lie in one plane, mirrored in depth):
+                # the continuous path wins, and of two alike continuous ones the one nearer the rest pose
+                tie = robust_cost(new[2]) <= 1.05 * robust_cost(out[2])
+                rough_new, rough_old = _roughness(robot, new[0]), _roughness(robot, out[0])
+                smoother = rough_new < 0.5 * rough_old and rough_old - rough_new > 1.0  # a jump gone
+                nearer = rough_new <= 1.5 * rough_old + 1e-6 and \
+                    _rest_distance(robot, new[0], new[0][:1], c["gauge"]).mean() < \
+                    _rest_distance(robot, out[0], out[0][:1], c["gauge"]).mean() - 0.1
+                if not (better or tie and (smoother or nearer)):
+                    break  # only a better fit of the tracks, or an equal fit by a smoother path or nearer rest
                 out = new
             # where the data cannot choose (a wrist mirrored about points on its axes), the rest pose's branch
             q_fix = _repair_branches(robot, out[0], tracks, w2, out[1], free, c["gauge"])
@@ -1334,7 +1396,8 @@ def fit_joint_angles(
                 out = _sequence_lm(robot, q_fix, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol, delta)
             n_iter += out[-1]
             # camera looking down on the base plane: its forward axis (third row, image y down) has z < 0
-            return dict(cost=float(np.sqrt((w2 * out[2] ** 2).sum() / w2.sum())), out=out, c=c, g2=g2,
+            return dict(cost=float(np.sqrt((w2 * out[2] ** 2).sum() / w2.sum())), sse=float((w2 * out[2] ** 2).sum()),
+                        n_obs=2 * int((w2 > 0).sum()), out=out, c=c, g2=g2,
                         q=out[0], gauge=g2, down=-float(np.mean(out[1].R[:, 2, 2])), free=free, delta=delta)
 
         def seen_from_wrong_side(r):
@@ -1350,27 +1413,43 @@ def fit_joint_angles(
             alt = refine_2d(dict(candidates[0], q=q2, pos=robot.positions(q2), camera0=v2))
             if alt["cost"] * 1.5 < min(r["cost"] for r in results):  # clearly better, not a tie
                 results.append(alt)
-        results = _prefer_rest(robot, results, "cost", blind, 0.05 * px_floor)
-        mirror_tied = len(results) > 1 and results[1]["cost"] <= 1.5 * results[0]["cost"] + 0.05 * px_floor
-        if mirror_tied and view_from in ("above", "below"):
-            sgn = 1 if view_from == "above" else -1
-            results[:2] = sorted(results[:2], key=lambda r: -sgn * r["down"])
-        if seen_from_wrong_side(results[0]) and transform == "similarity":
-            # The best motion is seen from the wrong side of the base plane. Its depth mirror, fitted in
-            # 3D from the refined motion (a far better start than the reconstruction), and refined:
-            r0 = results[0]
-            R0 = r0["out"][1].R[0] if not per_frame else r0["out"][1].R.mean(0)
-            X_alt = np.einsum("ij,fkj->fki", R0.T @ np.diag([1.0, 1.0, -1.0]) @ R0, r0["out"][3])
+        def tracks_tie(a, b):
+            # refined fits: b is as good as a unless its squared residuals exceed a's by more than
+            # 25 noise variances (a likelihood ratio test, noise estimated from a's residuals)
+            var = max(a["sse"] / max(a["n_obs"], 1), (0.05 * px_floor) ** 2)
+            return b["sse"] - a["sse"] <= 25.0 * var
+
+        def order(rs):
+            # among the fits the tracks cannot tell apart: seen from the right side first, then the
+            # one nearer the rest pose
+            best_fit = min(rs, key=lambda r: r["sse"])
+            n_tied = sum(tracks_tie(best_fit, r) for r in rs)
+            rs = _prefer_rest(robot, rs, "cost", blind, tie=tracks_tie)
+            rs[:n_tied] = sorted(rs[:n_tied], key=seen_from_wrong_side)
+            return rs, n_tied > 1
+
+        results, mirror_tied = order(results)
+        def mirrored(r, M):
+            # r's motion reflected by M (3 x 3, base frame), fitted in 3D from the refined motion (a far
+            # better start than the reconstruction), then refined on the tracks
+            nonlocal n_iter
+            X_alt = np.einsum("ij,fkj->fki", M, r["out"][3])
             q_a, view_a, it_a = _fit_3d(robot, X_alt, w3, free_blind, transform, max_iter, tol, gauge0)
-            q_a, free_a = _hold(robot, q_a, blind, r0["c"]["gauge"], False, unseen3)
+            q_a, free_a = _hold(robot, q_a, blind, r["c"]["gauge"], False, unseen3)
             view_a = _align(robot.positions(q_a), X_alt, w3, transform)
             q_a, view_a, rn_a, pos_a, conv_a, it_b = _sequence_lm(robot, q_a, X_alt, w3, view_a, free_a,
                                                                   free_sim, 20, tol, None)
             n_iter += it_a + it_b
-            alt = refine_2d(dict(sign=-r0["c"]["sign"], q=q_a, pos=pos_a, gauge=r0["c"]["gauge"], conv=conv_a))
-            if alt["cost"] <= 1.5 * r0["cost"] + 0.05 * px_floor and not seen_from_wrong_side(alt):
-                results.insert(0, alt)
-                mirror_tied = True
+            return refine_2d(dict(sign=-r["c"]["sign"], q=q_a, pos=pos_a, gauge=r["c"]["gauge"], conv=conv_a))
+
+        if transform == "similarity":
+            # Two reflections keep every track: the depth mirror (weak perspective), and for a robot
+            # built mirror-symmetric (its tracked points in one vertical plane at rest) the mirror about
+            # that plane, seen through the mirrored camera. The best motion is tried under both.
+            r0 = results[0]
+            R0 = r0["out"][1].R[0] if not per_frame else r0["out"][1].R.mean(0)
+            alts = [mirrored(r0, R0.T @ np.diag([1.0, 1.0, -1.0]) @ R0), mirrored(r0, np.diag([1.0, -1.0, 1.0]))]
+            results, mirror_tied = order(results + alts)
         r = results[0]
         w_ok = w2 > 0
         sigma = float(np.median(r["out"][2][w_ok])) / 1.1774 if w_ok.any() else 0.0
@@ -1378,7 +1457,7 @@ def fit_joint_angles(
             # joint accelerations ~ N(0, accel_std^2) against pixel noise sigma: the prior's weight
             out = r["out"]
             mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
-            out2 = _smooth_lm(robot, out[0], tracks, w2, out[1], r["free"], np.ones(6, bool), max_iter, tol,
+            out2 = _smooth_lm(robot, robot.continuous(out[0]), tracks, w2, out[1], r["free"], np.ones(6, bool), max_iter, tol,
                               r["delta"], mu)
             n_iter += out2[5]
             r["out"] = out2

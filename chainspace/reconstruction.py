@@ -144,6 +144,13 @@ def _check_inputs(tracks, chain, init_pose, confidence, truth):
             f"a reconstruction needs at least {MIN_FRAMES} frames with at least {MIN_POINTS} visible "
             f"points each; got {F} frames, {int(usable.sum())} of them usable"
         )
+    ends = np.array([[chain.joint_index(a), chain.joint_index(b)] for a, b in chain.bones], int).reshape(-1, 2)
+    two_bones = (seen[:, ends[:, 0]] & seen[:, ends[:, 1]]).sum(1) >= 2
+    if two_bones.sum() < MIN_FRAMES:
+        raise TrackError(
+            f"a reconstruction needs at least {MIN_FRAMES} frames in which two whole bones are seen (both "
+            f"ends of each; the camera is fitted to bones); got {int(two_bones.sum())}"
+        )
     pts = W[seen]
     huge = np.abs(np.where(seen[..., None], W, 0.0)) > 1e12
     if huge.any():

@@ -365,6 +365,7 @@ def _gauss_newton(pb: _Problem, x: np.ndarray, l: np.ndarray) -> np.ndarray:
         ab[4, ..., 2] = kl * up[..., 0] * up[..., 2]
         ab[3, :, 1:] = ks * d1[:, None]
         ab[0, :, 2:] = ks * d2[:, None]
+        ab[6] += 1e-12 * ab[6].max()  # a ridge: huge smoothness or length weights leave it singular
         step[part] = solveh_banded(ab.reshape(7, -1), rhs[part].reshape(-1), check_finite=False).reshape(up.shape)
     return x + np.swapaxes(step, 0, 1)
 
@@ -401,7 +402,7 @@ def refine_bones(
     if lam_smooth is None:
         # As much as the track noise is large compared with the frame-to-frame acceleration of
         # human motion at 120 Hz (about 1/3000 of the subject's size), squared; a little always.
-        lam_smooth = max(0.1, (noise / (size / 3000.0)) ** 2)
+        lam_smooth = min(max(0.1, (noise / (size / 3000.0)) ** 2), 1e8)  # capped: near-constant tracks
     if delta is None:
         delta = max(3.0 * noise, 0.01 * size, 1e-12)
     pb = _Problem(Wb, wb, s, prior, float(np.median(s)) ** 2, lam_len, lam_smooth, lam_prior, float(delta),

@@ -85,17 +85,26 @@ def _sinusoids(robot: RobotKinematics, n_frames: int, fps: float, rng: np.random
 
 def conditioning(robot: RobotKinematics, q: np.ndarray, seen: np.ndarray | None = None) -> np.ndarray:
     """(F,) smallest singular value of the Jacobian of the tracked points (metres per radian) over the
-    joints that move them, less those a turn of the whole robot imitates (the first joint's turn about
-    the vertical). Near zero at a singularity: a wrist stretched straight, where two joints' axes
-    align and only their sum is seen."""
+    joints that move them. Near zero at a singularity: a wrist stretched straight, or a 7-axis arm's
+    shoulder with its upper arm along the first axis, where two joints' axes align and only their sum
+    is seen. The first joint counts even where a turn of the whole robot imitates it: aligned with the
+    third, the two trade angle freely, and the arm can pass on to a second branch that fits every
+    tracked point alike (both turned half a turn, the second joint mirrored)."""
     from .fit import _structural
 
     seen = np.ones(robot.chain.n_joints, bool) if seen is None else seen
-    blind, gauge = _structural(robot, seen[None].astype(float))
-    keep = ~blind & ~gauge
+    blind, _ = _structural(robot, seen[None].astype(float))
+    keep = ~blind
     _, jac = robot.jacobians(q)
     J = jac[:, seen][..., keep].reshape(len(q), -1, int(keep.sum()))
     return np.linalg.svd(J, compute_uv=False)[:, -1] if keep.any() else np.full(len(q), np.inf)
+
+
+def _typical_conditioning(robot: RobotKinematics, rng: np.random.Generator) -> float:
+    """Median :func:`conditioning` of random configurations inside the trajectory window."""
+    lo, hi = _window(robot)
+    probe = robot.clip(np.where(robot.v_of_q >= 0, rng.uniform(lo, hi, (64, robot.nq)), robot.q_rest))
+    return float(np.median(conditioning(robot, probe)))
 
 
 def random_trajectory(robot: RobotKinematics, n_frames: int, fps: float, rng: np.random.Generator,
@@ -108,9 +117,7 @@ def random_trajectory(robot: RobotKinematics, n_frames: int, fps: float, rng: np
     stays above half the robot's typical value is taken (else the best): near a singularity joints
     cannot be told apart by any camera, which says nothing about a camera set-up.
     """
-    lo, hi = _window(robot)
-    probe = robot.clip(np.where(robot.v_of_q >= 0, rng.uniform(lo, hi, (64, robot.nq)), robot.q_rest))
-    typical = float(np.median(conditioning(robot, probe)))
+    typical = _typical_conditioning(robot, rng)
     best, best_c = None, -np.inf
     for _ in range(tries):
         q = _sinusoids(robot, n_frames, fps, rng, amplitude, max_hz)
@@ -181,12 +188,31 @@ def _working_pose(robot: RobotKinematics, tip: int, rng: np.random.Generator, n:
 
 
 def milling_trajectory(robot: RobotKinematics, n_frames: int, rng: np.random.Generator,
-                       *, size: float = 0.2, laps: float = 1.0) -> np.ndarray:
+                       *, size: float = 0.2, laps: float = 1.0, tries: int = 10) -> np.ndarray:
     """Joint motion (F, nq) whose tool tip (the deepest chain point) traces a rounded rectangle in a
     horizontal plane, from a dexterous working pose, solved by damped least-squares IK on the tip's
     position (Pinocchio frame Jacobian; minimum-norm steps, so the other joints move as little as they
     can), warm-started frame to frame, inside the limits. ``size`` is the rectangle's longer side as a
-    fraction of the robot's reach."""
+    fraction of the robot's reach.
+
+    Of up to ``tries`` working poses the first whose path keeps :func:`conditioning` above half the
+    robot's typical value is taken (else the best): a path through a wrist singularity (the wrist
+    stretched straight) is one a robot programmer avoids, and no camera can split the joints there.
+    """
+    typical = _typical_conditioning(robot, rng)
+    best, best_c = None, -np.inf
+    for _ in range(tries):
+        q = _milling_path(robot, n_frames, rng, size, laps)
+        c = float(conditioning(robot, q[:: max(1, n_frames // 60)]).min())
+        if c > best_c:
+            best, best_c = q, c
+        if c >= typical / 2:
+            break
+    return best
+
+
+def _milling_path(robot: RobotKinematics, n_frames: int, rng: np.random.Generator, size: float,
+                  laps: float) -> np.ndarray:
     tip = _tip_index(robot.chain)
     q = _working_pose(robot, tip, rng)
     start = robot.positions(q)[0, tip]
@@ -252,21 +278,37 @@ def synthesize(
     seed
         Seed for the trajectory, camera, noise and drops.
     """
-    chain = _chain(urdf_or_chain)
-    if camera not in ("static", "moving"):
+    def number(name: str, value: Any, ok, need: str) -> float:
+        # a real number (not a bool, string or array), finite, and within its range
+        if (isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating))
+                or not np.isfinite(value) or not ok(float(value))):
+            raise TrackError(f"{name} must be {need}, not {value!r}")
+        return float(value)
+
+    if (isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 2):
+        raise TrackError(f"n_frames must be an integer of at least 2, not {n_frames!r}")
+    n_frames = int(n_frames)
+    fps = number("fps", fps, lambda v: v > 0, "a finite number > 0 (frames per second)")
+    noise_px = number("noise_px", noise_px, lambda v: v >= 0, "a finite number >= 0 (pixels)")
+    drop = number("drop", drop, lambda v: 0 <= v < 1, "a fraction in [0, 1)")
+    image_height_px = number("image_height_px", image_height_px, lambda v: v > 0, "a finite number > 0 (pixels)")
+    if elevation_deg is not None:
+        elevation_deg = number("elevation_deg", elevation_deg, lambda v: -90 < v < 90,
+                               "None or a number of degrees in (-90, 90)")
+    if not isinstance(camera, str) or camera not in ("static", "moving"):
         raise DescriptionError(f"camera must be 'static' or 'moving', not {camera!r}")
-    trajectory = trajectory or "random"
-    if trajectory not in ("random", "milling"):
+    trajectory = "random" if trajectory is None else trajectory
+    if not isinstance(trajectory, str) or trajectory not in ("random", "milling"):
         raise DescriptionError(f"trajectory must be 'random' or 'milling', not {trajectory!r}")
-    if int(n_frames) < 2:
-        raise TrackError(f"n_frames must be at least 2, not {n_frames}")
-    if not (0 <= drop < 1) or noise_px < 0 or image_height_px <= 0 or fps <= 0:
-        raise TrackError("need 0 <= drop < 1, noise_px >= 0, image_height_px > 0 and fps > 0")
+    try:
+        rng = np.random.default_rng(seed)
+    except (TypeError, ValueError) as e:
+        raise TrackError(f"seed must be None, a non-negative integer or a numpy Generator, "
+                         f"not {seed!r} ({e})") from None
+    chain = _chain(urdf_or_chain)
     from .synthetic import observe, orbit_cameras
 
-    rng = np.random.default_rng(seed)
     robot = RobotKinematics(chain.metadata["urdf_path"], chain)
-    n_frames = int(n_frames)
     q = (random_trajectory(robot, n_frames, fps, rng) if trajectory == "random"
          else milling_trajectory(robot, n_frames, rng))
     positions = robot.positions(q)
