@@ -23,14 +23,30 @@ sequence, the joint angles ``q`` that put those frames where the points were see
 
 Ambiguities the tracks cannot settle, and the rules that settle them
 --------------------------------------------------------------------
-* *Mirror image.* A motion and its depth mirror project alike under weak perspective; for a robot
-  built mirror-symmetric (most industrial arms) the mirror is a valid motion of the same robot, seen
-  from the other side of its base plane. ``view_from="above"`` (default) keeps the one whose camera
-  looks down on the base plane (or level).
-* *Discrete branches.* Tracked points on joint axes leave configurations that put every point in the
-  same place (a wrist turned half a turn with the next joint mirrored). The branch nearer the rest
-  pose is kept, frame by frame (also where a path passes a singularity): joints within about 70
-  degrees of their rest values come out right.
+Under weak perspective several motions can put every tracked point on its track exactly. The fit
+generates them as candidates and, among those that fit alike (squared residuals within 25 noise
+variances of the best: a likelihood-ratio test), applies these rules:
+
+* *Mirror image.* A motion and its depth mirror project alike; for a robot built mirror-symmetric
+  (its tracked points in one vertical plane at rest, as on most industrial arms) the mirror is a
+  valid motion of the same robot, seen from the other side of its base plane. ``view_from="above"``
+  (default) keeps the one whose camera looks down on the base plane (or level). The mirror about the
+  robot's own symmetry plane, seen through a mirrored camera, is tried too.
+* *Planar bodies on ball-like joints.* Where every tracked point beyond a joint group lies in one
+  plane with its centre (a spherical wrist carrying a planar tool; a 7-axis arm's spherical
+  shoulder), that part mirrored in depth about the centre is again a pose of the robot, in every
+  frame. Per frame the fit tries each link's depth flip, then chooses the path through all frames
+  by dynamic programming: a jump to another branch between frames costs, and of two continuous
+  paths that fit alike, the one nearer the rest pose is kept (joints within about 70 degrees of
+  their rest values come out right).
+* *Ball-like shoulder with every base point on the first axis* (Panda, xArm7 and similar 7-axis
+  arms): the whole arm beyond the shoulder mirrors exactly, in every frame, and the rest-pose rule
+  picks wrongly as often as not. Track a point on the first link's housing, off its axis
+  (``extra_frames={"shoulder_marker": ("panda_link1", [0.08, 0, -0.1])}``); the benchmark does.
+* *Singularities.* Where two joint axes align (a wrist stretched straight; a 7-axis arm's upper arm
+  along its first axis) only the sum of their angles is seen, and a path may continue on either
+  branch. Nothing in the tracks can split them there; plan paths (and camera checks) away from them,
+  as :func:`chainspace.synthesize` does.
 
 Observability (the rule)
 ------------------------
@@ -132,6 +148,7 @@ class RobotKinematics:
         up = self.q_rest + 0.3
         seed = np.where(self.limited & (up > self.upper), self.q_rest - 0.3, up)
         self.q_seed = self.clip(np.where(self.revolute, seed, self.q_rest))
+        self.q_seed_other = self.clip(2 * self.q_rest - self.q_seed)  # turned the other way
         # the velocity index driving each q entry (-1 for the extra entries of multi-dof joints)
         self.v_of_q = self.idx_v.copy()
         self.q_of_v = np.array([int(np.flatnonzero(self.idx_v == v)[0]) if (self.idx_v == v).any() else -1
@@ -864,38 +881,17 @@ def _sequential_ik(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, view: _
     return q
 
 
-def _seeded(robot: RobotKinematics, q: np.ndarray, free: np.ndarray) -> np.ndarray:
-    """Start configurations (F, nq): the solver seed near the rest pose where a direction is free, the
-    current q where it is held."""
+def _seeded(robot: RobotKinematics, q: np.ndarray, free: np.ndarray, other_side: bool = False) -> np.ndarray:
+    """Start configurations (F, nq): the solver seed near the rest pose (or the one turned the other
+    way) where a direction is free, the current q where it is held."""
     held = np.zeros(q.shape, bool)
     vq = robot.v_of_q >= 0
     held[:, vq] = ~free[:, robot.v_of_q[vq]]
-    return np.where(held, q, robot.q_seed)
-
-
-def _repair_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
-                     free: np.ndarray, gauge: np.ndarray) -> np.ndarray:
-    """Frames that a solution from the rest pose fits as well (within 1.5 times) and with joints nearer
-    the rest pose (by more than a tenth of a turn) take that solution: a path that passed a singularity
-    on a flipped branch (a wrist turned half a turn, the next joint mirrored) returns to the rest
-    pose's branch."""
-    F, D = len(q), target.shape[-1]
-    fixed = np.zeros(4 + D, bool)
-    q_r, _, rn_r, _, _, _ = _sequence_lm(robot, _seeded(robot, q, free), target, w, view, free,
-                                         fixed, 30, 1e-8, None)
-    _, jac = robot.jacobians(q)
-    rn = np.linalg.norm(view.apply(robot.positions(q))[0] - np.nan_to_num(target), axis=-1)
-    e, e_r = np.sqrt((w * rn ** 2).sum(1)), np.sqrt((w * rn_r ** 2).sum(1))
-    q_prev = np.concatenate([q[:1], q[:-1]])
-    d, d_r = _rest_distance(robot, q, q_prev, gauge), _rest_distance(robot, q_r, q_prev, gauge)
-    swap = (e_r <= 1.5 * e + 1e-9 * view.S[0]) & (d_r < d - 0.2 * np.pi)
-    q = q.copy()
-    q[swap] = q_r[swap]
-    return q
+    return np.where(held, q, robot.q_seed_other if other_side else robot.q_seed)
 
 
 def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
-                      free: np.ndarray, sigma: float, n_random: int = 8, step: float = 0.1, free_step: float = 0.15,
+                      free: np.ndarray, sigma: float, n_random: int = 4, step: float = 0.1, free_step: float = 0.15,
                       seed: int = 0) -> np.ndarray:
     """The sequence's branch, chosen globally: per frame a few IK solutions under the fixed view(s)
     (from the current path, the rest pose and random configurations, batched), then the path through
@@ -919,7 +915,7 @@ def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray,
     held_q[:, vq] = ~free[:, robot.v_of_q[vq]]
     rand = robot.clip(rng.uniform(lo, hi, (n_random, nq))) if robot.euclidean else \
         np.broadcast_to(robot.q_rest, (n_random, nq))
-    starts = [q, _seeded(robot, q, free)] + [np.where(held_q, q, r) for r in rand] + \
+    starts = [q, _seeded(robot, q, free), _seeded(robot, q, free, True)] + [np.where(held_q, q, r) for r in rand] + \
         [np.where(held_q, q, m) for m in _depth_flips(robot, q, view, free)]
     K = len(starts)
     q0 = np.concatenate(starts)
@@ -928,7 +924,7 @@ def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray,
                                       np.zeros(4 + target.shape[-1], bool), 30, 1e-8, None)
     qs = qs.reshape(K, F, nq)
     data = (w[idx] * rn ** 2).sum(1).reshape(K, F) / max(sigma, 1e-12) ** 2
-    data += 1e-3 * np.abs(_wrapped(robot, qs - robot.q_rest)).sum(-1)
+    data += 0.05 * np.abs(_wrapped(robot, qs - robot.q_rest)).sum(-1)
     back = np.zeros((F, K), int)
     acc = data[:, 0].copy()
     for f in range(1, F):  # a loop over frames: the recursion is sequential, each step is (K, K)
@@ -963,13 +959,40 @@ def _depth_flips(robot: RobotKinematics, q: np.ndarray, view: _View, free: np.nd
         m = pos.copy()
         m[:, beyond] -= 2 * depth[..., None] * n[:, None]
         mirrored.append(m)
-    if not mirrored:
-        return []
-    K = len(mirrored)
+    # also the same points reached with the joints from each one on started from either side of the
+    # rest pose: the other branches that put every point where it is (a wrist turned half a turn with
+    # the next joint mirrored)
+    partial = []
+    for k in np.flatnonzero(robot.revolute):
+        for other_side in (False, True):
+            start = q.copy()
+            start[:, k:] = _seeded(robot, q, free, other_side)[:, k:]
+            partial.append(start)
+    targets = [pos] * len(partial) + mirrored
+    starts = partial + [q] * len(mirrored)
+    K = len(targets)
     eye = _View(np.ones(1), np.eye(3)[None], np.zeros((1, 3)), np.zeros(K * F, int))
-    qs = _sequence_lm(robot, np.tile(q, (K, 1)), np.concatenate(mirrored), np.ones((K * F, pos.shape[1])), eye,
-                      np.tile(free, (K, 1)), np.zeros(7, bool), 20, 1e-6, None)[0]
+    qs = _sequence_lm(robot, np.concatenate(starts), np.concatenate(targets), np.ones((K * F, pos.shape[1])), eye,
+                      np.tile(free, (K, 1)), np.zeros(7, bool), 30, 1e-8, None)[0]
     return list(qs.reshape(K, F, -1))
+
+
+def _nearest_rest_branch(robot: RobotKinematics, q: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """The path that puts every point where q (F, nq) puts it, on the branch nearest the rest pose.
+
+    Tracked points on joint axes leave configurations that put every point in the same place (a wrist
+    turned half a turn with the next joint mirrored). No image can choose among them; this picks, by
+    the same dynamic programming as :func:`_viterbi_branches` on the 3D points (a continuous path,
+    then nearness to the rest pose), and changes no point by more than a thousandth of the reach.
+    Returns q itself when nothing changes."""
+    pos = robot.positions(q)
+    eye = _View(np.ones(1), np.eye(3)[None], np.zeros((1, 3)), np.zeros(len(q), int))
+    tol = 1e-3 * robot.reach()
+    alt = _viterbi_branches(robot, q, pos, np.ones(pos.shape[:2]), eye, free, 0.1 * tol, n_random=4)
+    moved = np.linalg.norm(robot.positions(alt) - pos, axis=-1).max()
+    if moved > tol or np.abs(_wrapped(robot, alt - q)).max() < 1e-3:
+        return q
+    return alt
 
 
 def _fit_3d(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np.ndarray, transform: str,
@@ -1095,7 +1118,6 @@ def _prefer_rest(robot: RobotKinematics, cands: list[dict], key: str, blind: np.
     ``tie(best, c)``), the nearest the rest pose (mean absolute joint offset over the fitted,
     observable joints) comes first."""
     cands = sorted(cands, key=lambda c: c[key])
-    best = cands[0][key]
     tie = tie or (lambda b, c: c[key] <= 1.5 * b[key] + floor + 1e-12)
     tied = [c for c in cands if tie(cands[0], c)]
 
@@ -1384,16 +1406,16 @@ def fit_joint_angles(
                 tie = robust_cost(new[2]) <= 1.05 * robust_cost(out[2])
                 rough_new, rough_old = _roughness(robot, new[0]), _roughness(robot, out[0])
                 smoother = rough_new < 0.5 * rough_old and rough_old - rough_new > 1.0  # a jump gone
-                nearer = rough_new <= 1.5 * rough_old + 1e-6 and \
+                nearer = rough_new <= 1.5 * rough_old + 1.0 and \
                     _rest_distance(robot, new[0], new[0][:1], c["gauge"]).mean() < \
                     _rest_distance(robot, out[0], out[0][:1], c["gauge"]).mean() - 0.1
                 if not (better or tie and (smoother or nearer)):
                     break  # only a better fit of the tracks, or an equal fit by a smoother path or nearer rest
                 out = new
-            # where the data cannot choose (a wrist mirrored about points on its axes), the rest pose's branch
-            q_fix = _repair_branches(robot, out[0], tracks, w2, out[1], free, c["gauge"])
-            if not np.array_equal(q_fix, out[0]):
-                out = _sequence_lm(robot, q_fix, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol, delta)
+            q_rest_branch = _nearest_rest_branch(robot, out[0], free)
+            if q_rest_branch is not out[0]:
+                out = _sequence_lm(robot, q_rest_branch, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol,
+                                   delta)
             n_iter += out[-1]
             # camera looking down on the base plane: its forward axis (third row, image y down) has z < 0
             return dict(cost=float(np.sqrt((w2 * out[2] ** 2).sum() / w2.sum())), sse=float((w2 * out[2] ** 2).sum()),

@@ -107,6 +107,21 @@ def _typical_conditioning(robot: RobotKinematics, rng: np.random.Generator) -> f
     return float(np.median(conditioning(robot, probe)))
 
 
+def _well_conditioned(robot: RobotKinematics, rng: np.random.Generator, tries: int, make) -> np.ndarray:
+    """Of up to ``tries`` paths (F, nq) from ``make()``, the first whose :func:`conditioning` (on about
+    60 frames) stays above half the robot's typical value, else the best."""
+    typical = _typical_conditioning(robot, rng)
+    best, best_c = None, -np.inf
+    for _ in range(tries):
+        q = make()
+        c = float(conditioning(robot, q[:: max(1, len(q) // 60)]).min())
+        if c > best_c:
+            best, best_c = q, c
+        if c >= typical / 2:
+            break
+    return best
+
+
 def random_trajectory(robot: RobotKinematics, n_frames: int, fps: float, rng: np.random.Generator,
                       *, amplitude: float = 0.45, max_hz: float = 0.3, tries: int = 40) -> np.ndarray:
     """Smooth random joint motion (F, nq) away from singularities.
@@ -117,16 +132,7 @@ def random_trajectory(robot: RobotKinematics, n_frames: int, fps: float, rng: np
     stays above half the robot's typical value is taken (else the best): near a singularity joints
     cannot be told apart by any camera, which says nothing about a camera set-up.
     """
-    typical = _typical_conditioning(robot, rng)
-    best, best_c = None, -np.inf
-    for _ in range(tries):
-        q = _sinusoids(robot, n_frames, fps, rng, amplitude, max_hz)
-        c = float(conditioning(robot, q[:: max(1, n_frames // 60)]).min())
-        if c > best_c:
-            best, best_c = q, c
-        if c >= typical / 2:
-            break
-    return best
+    return _well_conditioned(robot, rng, tries, lambda: _sinusoids(robot, n_frames, fps, rng, amplitude, max_hz))
 
 
 def _tip_index(chain: KinematicChain) -> int:
@@ -199,16 +205,7 @@ def milling_trajectory(robot: RobotKinematics, n_frames: int, rng: np.random.Gen
     robot's typical value is taken (else the best): a path through a wrist singularity (the wrist
     stretched straight) is one a robot programmer avoids, and no camera can split the joints there.
     """
-    typical = _typical_conditioning(robot, rng)
-    best, best_c = None, -np.inf
-    for _ in range(tries):
-        q = _milling_path(robot, n_frames, rng, size, laps)
-        c = float(conditioning(robot, q[:: max(1, n_frames // 60)]).min())
-        if c > best_c:
-            best, best_c = q, c
-        if c >= typical / 2:
-            break
-    return best
+    return _well_conditioned(robot, rng, tries, lambda: _milling_path(robot, n_frames, rng, size, laps))
 
 
 def _milling_path(robot: RobotKinematics, n_frames: int, rng: np.random.Generator, size: float,
