@@ -441,7 +441,8 @@ def bench(
 def demo(
     out: Annotated[Path, typer.Option("--out", "-o", help="Folder for everything the demo writes.")] =
     Path("demo-output"),
-    seed: Annotated[int, typer.Option(help="Random seed of the synthetic trial.")] = 0,
+    seed: Annotated[int, typer.Option(help="Random seed of the synthetic trial (the camera placement; "
+                                           "see chainspace.demo.run_demo).")] = 4,
     overwrite: Overwrite = False,
 ) -> None:
     """The main job on bundled data: the milling arm filmed by one camera, reconstructed, its joint angles
