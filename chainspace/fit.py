@@ -1467,11 +1467,16 @@ def fit_joint_angles(
         if transform == "similarity":
             # Two reflections keep every track: the depth mirror (weak perspective), and for a robot
             # built mirror-symmetric (its tracked points in one vertical plane at rest) the mirror about
-            # that plane, seen through the mirrored camera. The best motion is tried under both.
-            r0 = results[0]
-            R0 = r0["out"][1].R[0] if not per_frame else r0["out"][1].R.mean(0)
-            alts = [mirrored(r0, R0.T @ np.diag([1.0, 1.0, -1.0]) @ R0), mirrored(r0, np.diag([1.0, -1.0, 1.0]))]
-            results, mirror_tied = order(results + alts)
+            # that plane, seen through the mirrored camera. The best motion is tried under both; when a
+            # reflection wins (a better fit found from the reflected start), it is reflected in turn,
+            # since its own mirror image may be the one seen from the right side.
+            reflected: list[dict] = []
+            while len(reflected) < 2 and not any(results[0] is r for r in reflected):
+                r0 = results[0]
+                reflected.append(r0)
+                R0 = r0["out"][1].R[0] if not per_frame else r0["out"][1].R.mean(0)
+                alts = [mirrored(r0, R0.T @ np.diag([1.0, 1.0, -1.0]) @ R0), mirrored(r0, np.diag([1.0, -1.0, 1.0]))]
+                results, mirror_tied = order(results + alts)
         r = results[0]
         w_ok = w2 > 0
         sigma = float(np.median(r["out"][2][w_ok])) / 1.1774 if w_ok.any() else 0.0
