@@ -940,6 +940,28 @@ def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray,
     return robot.continuous(qs[k, np.arange(F)])
 
 
+def _viterbi_reanchored(robot: RobotKinematics, q: np.ndarray, tracks: np.ndarray, w: np.ndarray, view: _View,
+                        free: np.ndarray, sigma: float, gauge: np.ndarray, per_frame: bool, blind: np.ndarray,
+                        unseen: np.ndarray) -> tuple[np.ndarray, _View]:
+    """:func:`_viterbi_branches` on the tracks with a static camera's gauge joint free in frame 0 too.
+
+    The gauge joint (seen only relative to frame 0) is held at rest in frame 0, and the camera turned
+    to match. If frame 0 started on a wrong branch, the camera was turned by that branch's error and
+    no pose of frame 0 with the held value fits: the frame is stuck however the others move. Here
+    frame 0 may take any value under the current camera; afterwards the whole sequence is shifted
+    back to rest in frame 0 and the camera re-fitted (in closed form) to the shifted motion.
+    Returns (q, view)."""
+    if per_frame or not gauge.any():
+        return _viterbi_branches(robot, q, tracks, w, view, free, sigma), view
+    free0 = free.copy()
+    free0[0] |= gauge & ~blind & ~unseen[0]
+    q_fix = _viterbi_branches(robot, q, tracks, w, view, free0, sigma)
+    if np.abs(_wrapped(robot, q_fix[0] - q[0])[_gauge_q(robot, gauge)]).max(initial=0.0) < 1e-9:
+        return q_fix, view
+    q_fix, _ = _hold(robot, q_fix, blind, gauge, False)
+    return q_fix, _camera_view(robot.positions(q_fix), tracks, w, False)
+
+
 def _depth_flips(robot: RobotKinematics, q: np.ndarray, view: _View, free: np.ndarray) -> list[np.ndarray]:
     """Starts on the other side of each link's depth ambiguity: per tree link, the configuration whose
     points best match the current ones with that link and everything beyond it mirrored in depth
@@ -1394,10 +1416,11 @@ def fit_joint_angles(
             out = _sequence_lm(robot, q, tracks, w2, view, free, np.ones(6, bool), max_iter, tol, delta)
             for _ in range(2):  # then the branch of every frame, chosen for the whole sequence
                 sig = max(float(np.median(out[2][w2 > 0])) / 1.1774, px_floor)
-                q_fix = _viterbi_branches(robot, out[0], tracks, w2, out[1], free, sig)
+                q_fix, view_fix = _viterbi_reanchored(robot, out[0], tracks, w2, out[1], free, sig, c["gauge"],
+                                                      per_frame, blind, unseen2)
                 if np.abs(_wrapped(robot, q_fix - out[0])).max() < 0.05:
                     break
-                new = _sequence_lm(robot, q_fix, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol, delta)
+                new = _sequence_lm(robot, q_fix, tracks, w2, view_fix, free, np.ones(6, bool), max_iter, tol, delta)
                 worst_old = np.nanmax(_rms_per_frame(out[2], w2))
                 better = robust_cost(new[2]) <= 0.99 * robust_cost(out[2]) and \
                     np.nanmax(_rms_per_frame(new[2], w2)) <= 1.1 * worst_old + px_floor
