@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ROBOTS", "robot_chain", "run_robot_benchmark", "format_robot_table"]
+__all__ = ["ROBOTS", "robot_chain", "run_robot_benchmark", "format_robot_table", "trial_errors"]
 
 # tracked points per robot: every link origin (the URDF's own points); the Panda without its fingers
 # (a gripper's fingers are rarely trackable), which leaves its flange joint unobservable. The two
@@ -55,7 +55,7 @@ def robot_chain(name: str):
     return from_urdf(path, links=spec["links"], extra_frames=spec.get("extra_frames"))
 
 
-def _trial_errors(fit: Any, trial: Any) -> tuple[float, float]:
+def trial_errors(fit: Any, trial: Any) -> tuple[float, float]:
     """(worst per-joint RMS degrees over judged joints, mean 3D error of the fitted robot in metres)."""
     from .validation import validate
 
@@ -93,7 +93,7 @@ def run_robot_benchmark(quick: bool = False, progress: Callable[[str], None] | N
                     rec = reconstruct(trial.tracks, chain, seed=seed)
                     fit = fit_joint_angles(rec, camera=camera)
                 secs += time.perf_counter() - t0
-                j, e = _trial_errors(fit, trial)
+                j, e = trial_errors(fit, trial)
                 errs.append(j)
                 e3.append(e)
                 unobs |= {n for n, o, r in zip(fit.joint_names, fit.observable, fit.relative) if not (o or r)}
