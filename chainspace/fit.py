@@ -38,7 +38,10 @@ variances of the best: a likelihood-ratio test), applies these rules:
   frame. Per frame the fit tries each link's depth flip, then chooses the path through all frames
   by dynamic programming: a jump to another branch between frames costs, and of two continuous
   paths that fit alike, the one nearer the rest pose is kept (joints within about 70 degrees of
-  their rest values come out right).
+  their rest values come out right). Where the camera sees that plane nearly face-on the two
+  branches meet, its tilt in depth is seen only to second order, and a noisy path can leave on the
+  other branch (the shipped milling arm's tool roll, on some views). Track a point off the plane
+  (``extra_frames={"tool_marker": ("spindle", [0, 0.08, 0])}``): the tilt is then seen to first order.
 * *Ball-like shoulder with every base point on the first axis* (Panda, xArm7 and similar 7-axis
   arms): the whole arm beyond the shoulder mirrors exactly, in every frame, and the rest-pose rule
   picks wrongly as often as not. Track a point on the first link's housing, off its axis
