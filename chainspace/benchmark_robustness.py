@@ -227,8 +227,8 @@ def _sweep_walk(quick: bool, n_cameras: int, base_noise: float, say: Callable[[s
 
 def _sweep_arm(quick: bool, n_seeds: int, n_frames: int, base_noise: float,
                say: Callable[[str], None], trajectory: str = "random") -> list[dict]:
-    from .descriptions import shipped
     from .benchmark_robots import trial_errors
+    from .descriptions import shipped
     from .fit import fit_joint_angles
     from .metrics import error_3d
     from .robot_synthetic import synthesize

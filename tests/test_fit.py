@@ -190,22 +190,28 @@ def test_wrist_turned_half_a_turn_goes_back_to_the_rest_branch(arm):
     assert np.abs(robot.positions(back) - trial.positions).max() < 1e-6
 
 
+def _benchmark_robot_fit(name, n_frames, seed):
+    """A benchmark robot's noise-free tracks reconstructed then fitted: (fit, errors (F, nq) rad with
+    relative joints counted from frame 0, judged joints (nq,) bool)."""
+    from chainspace.benchmark_robots import robot_chain
+    from chainspace.reconstruction import reconstruct
+
+    chain = robot_chain(name)
+    trial = synthesize(chain, n_frames=n_frames, noise_px=0.0, seed=seed)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_joint_angles(reconstruct(trial.tracks, chain, seed=seed))
+    d = _wrapped(fit.q - trial.q)
+    d[:, fit.relative] -= d[:1, fit.relative]
+    return fit, d, fit.observable | fit.relative
+
+
 def test_seven_axis_arm_with_a_shoulder_marker_from_noise_free_tracks():
     """Panda: with a marker on the first link's housing (off its axis) the arm beyond the ball-like
     shoulder no longer has an exact depth mirror; the reconstruction-then-fit recovers every
     observable joint."""
-    from chainspace.benchmark_robots import robot_chain
-    from chainspace.reconstruction import reconstruct
-
-    chain = robot_chain("Panda")
-    assert "shoulder_marker" in chain.joints
-    trial = synthesize(chain, n_frames=40, noise_px=0.0, seed=1)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        fit = fit_joint_angles(reconstruct(trial.tracks, chain, seed=1))
-    d = _wrapped(fit.q - trial.q)
-    d[:, fit.relative] -= d[:1, fit.relative]
-    judged = fit.observable | fit.relative
+    fit, d, judged = _benchmark_robot_fit("Panda", 40, 1)
+    assert "shoulder_marker" in fit.chain.joints
     assert judged.sum() >= 6
     assert np.degrees(np.abs(d[:, judged])).max() < 0.05
 
@@ -214,17 +220,7 @@ def test_seven_axis_arm_whose_first_frame_starts_on_a_wrong_branch():
     """xArm7, noise-free: the reconstruction's frame 0 leads the 3D fit onto another branch, and frame 0
     anchors the joint a static camera sees only relatively (held at rest there). The branch search
     frees it in frame 0 and re-anchors the sequence, so every observable joint is recovered."""
-    from chainspace.benchmark_robots import robot_chain
-    from chainspace.reconstruction import reconstruct
-
-    chain = robot_chain("xArm7")
-    trial = synthesize(chain, n_frames=100, noise_px=0.0, seed=0)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        fit = fit_joint_angles(reconstruct(trial.tracks, chain, seed=0))
-    d = _wrapped(fit.q - trial.q)
-    d[:, fit.relative] -= d[:1, fit.relative]
-    judged = fit.observable | fit.relative
+    fit, d, judged = _benchmark_robot_fit("xArm7", 100, 0)
     assert judged.sum() == 7
     assert np.degrees(np.abs(d[:, judged])).max() < 0.05
     assert np.nanmax(fit.residual_px) < 0.01
