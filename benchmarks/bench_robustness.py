@@ -21,7 +21,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # tiny matrices: BLAS thread
 import argparse  # noqa: E402
 import sys  # noqa: E402
 
-from chainspace.benchmark_robustness import check_targets, format_robustness, plot_robustness, run_robustness  # noqa: E402
+from chainspace.benchmark_robustness import (SWEEPS, check_targets, format_robustness, plot_robustness,  # noqa: E402
+                                             run_robustness)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -34,12 +35,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--trajectory", default="random", choices=["random", "milling"],
                     help="milling-arm motion: smooth random joints or the demo's contour path")
     ap.add_argument("--base-noise", type=float, default=2.0, help="pixel noise under the missing-data sweeps")
+    ap.add_argument("--sweeps", nargs="*", default=list(SWEEPS), choices=SWEEPS, help="which sweeps to run")
+    ap.add_argument("--no-tool-marker", action="store_true",
+                    help="track the milling arm without the mark on its spindle (its tool points then lie in one plane)")
     ap.add_argument("--plots", default=None, metavar="DIR", help="write the two plots into DIR")
     ap.add_argument("--overwrite", action="store_true", help="replace existing plots")
     args = ap.parse_args(argv)
     rows = run_robustness(args.quick, lambda m: print(m, file=sys.stderr), datasets=args.datasets,
                           n_cameras=args.cameras, n_seeds=args.seeds, n_frames=args.frames,
-                          base_noise_px=args.base_noise, arm_trajectory=args.trajectory)
+                          base_noise_px=args.base_noise, arm_trajectory=args.trajectory, sweeps=args.sweeps,
+                          tool_marker=not args.no_tool_marker)
     if not rows:
         print("no data: the walks need chainspace's bundled data or ../shared/data", file=sys.stderr)
         return 1

@@ -55,7 +55,7 @@ import numpy as np
 
 from .errors import ChainspaceError
 
-__all__ = ["NOISE_LEVELS", "MISSING_LEVELS", "run_robustness", "format_robustness", "check_targets",
+__all__ = ["NOISE_LEVELS", "MISSING_LEVELS", "SWEEPS", "TOOL_MARKER", "run_robustness", "format_robustness", "check_targets",
            "find_cliffs", "CLIFF_RULE", "plot_robustness", "hide_random", "hide_limbs", "limb_groups"]
 
 NOISE_LEVELS = (0.0, 1.0, 2.0, 3.0, 5.0, 7.5, 10.0)  # px
@@ -69,6 +69,13 @@ CLIFF_RULE = (f"Cliff: a step between neighbouring levels where the error rises 
               f"a {100 * CLIFF_FLOOR:g} % rise over the sweep), or (jump) by more than {CLIFF_JUMP:g} x the error "
               "before it (the larger of the error before the step and the full-data error: with 1 x, the error "
               "more than doubles), however bad the whole sweep is.")
+# A mark on the milling spindle's housing, 8 cm off the tool axis (frame: name -> (link, xyz in metres)).
+# The arm's other tool points (wrist centre, flange, spindle nose, tool tip) lie in one plane through the
+# wrist centre; that plane mirrored in depth is again a pose of the wrist, in every frame, and a path can
+# pass to the mirrored branch where the camera sees the plane face-on, at any noise level (see
+# chainspace.fit). The sweeps measure noise and missing data, so the arm is tracked as a user settling
+# that ambiguity would track it; ``tool_marker=False`` measures the plane alone.
+TOOL_MARKER = {"tool_marker": ("spindle", [0.0, 0.08, 0.0])}
 _HUMAN_LIMBS = (("left_shoulder", "left_elbow", "left_wrist"), ("right_shoulder", "right_elbow", "right_wrist"),
                 ("left_hip", "left_knee", "left_ankle"), ("right_hip", "right_knee", "right_ankle"),
                 ("neck", "head"))
@@ -179,25 +186,29 @@ def _reconstruct(W: np.ndarray, chain: Any) -> Any:
 
 
 # ------------------------------------------------------------------------------------------ the sweeps
-def _levels(quick: bool) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    if quick:
-        return (0.0, 2.0, 5.0, 10.0), (0.0, 0.2, 0.5)
-    return NOISE_LEVELS, MISSING_LEVELS
+SWEEPS = ("noise", "random", "limb")
 
 
-def _sweep_walk(quick: bool, n_cameras: int, base_noise: float, say: Callable[[str], None]) -> list[dict]:
+def _plan(quick: bool, base_noise: float, sweeps: Sequence[str]) -> list[tuple[str, float, float]]:
+    """(sweep, noise px, missing fraction) of every run of the chosen sweeps."""
+    noise_levels, missing_levels = ((0.0, 2.0, 5.0, 10.0), (0.0, 0.2, 0.5)) if quick else (NOISE_LEVELS,
+                                                                                           MISSING_LEVELS)
+    plan = [("noise", n, 0.0) for n in noise_levels]
+    plan += [(p, base_noise, m) for p in ("random", "limb") for m in missing_levels]
+    return [step for step in plan if step[0] in sweeps]
+
+
+def _sweep_walk(quick: bool, n_cameras: int, base_noise: float, say: Callable[[str], None],
+                sweeps: Sequence[str] = SWEEPS) -> list[dict]:
     from .metrics import error_3d
 
     chain, runs = _walk_runs(quick, n_cameras)
     if not runs:
         return []
-    noise_levels, missing_levels = _levels(quick)
     groups = limb_groups(chain)
     fps = 120.0  # CMU capture rate
     rows = []
-    plan = [("noise", n, 0.0) for n in noise_levels]
-    plan += [(p, base_noise, m) for p in ("random", "limb") for m in missing_levels]
-    for sweep, noise, missing in plan:
+    for sweep, noise, missing in _plan(quick, base_noise, sweeps):
         errs, hid, secs, failed = [], [], [], []
         for key, X, cam in runs:
             W = _observe_walk(X, key, cam, noise)
@@ -226,20 +237,19 @@ def _sweep_walk(quick: bool, n_cameras: int, base_noise: float, say: Callable[[s
 
 
 def _sweep_arm(quick: bool, n_seeds: int, n_frames: int, base_noise: float,
-               say: Callable[[str], None], trajectory: str = "random") -> list[dict]:
+               say: Callable[[str], None], trajectory: str = "random", sweeps: Sequence[str] = SWEEPS,
+               tool_marker: bool = True) -> list[dict]:
     from .benchmark_robots import trial_errors
-    from .descriptions import shipped
+    from .descriptions import shipped_path
     from .fit import fit_joint_angles
     from .metrics import error_3d
     from .robot_synthetic import synthesize
+    from .urdf import from_urdf
 
-    chain = shipped("milling_arm")
+    chain = from_urdf(shipped_path("milling_arm"), extra_frames=TOOL_MARKER if tool_marker else None)
     groups = limb_groups(chain)
-    noise_levels, missing_levels = _levels(quick)
-    plan = [("noise", n, 0.0) for n in noise_levels]
-    plan += [(p, base_noise, m) for p in ("random", "limb") for m in missing_levels]
     rows = []
-    for sweep, noise, missing in plan:
+    for sweep, noise, missing in _plan(quick, base_noise, sweeps):
         e_rec, e_fit, e_q, hid, secs, failed = [], [], [], [], [], []
         for s in range(n_seeds):
             trial = synthesize(chain, n_frames=n_frames, noise_px=noise, seed=_seed("arm", s),
@@ -283,13 +293,15 @@ def _sweep_arm(quick: bool, n_seeds: int, n_frames: int, base_noise: float,
 def run_robustness(quick: bool = False, progress: Callable[[str], None] | None = None, *,
                    datasets: Sequence[str] = ("walk35", "milling arm"), n_cameras: int | None = None,
                    n_seeds: int | None = None, n_frames: int | None = None,
-                   base_noise_px: float = 2.0, arm_trajectory: str = "random") -> list[dict]:
+                   base_noise_px: float = 2.0, arm_trajectory: str = "random", sweeps: Sequence[str] = SWEEPS,
+                   tool_marker: bool = True) -> list[dict]:
     """Run the sweeps; returns one dict row per (dataset, sweep, level) (see the module docstring).
 
     ``quick``: 3 walks x 1 camera, 1 arm trial of 60 frames, 4 noise and 3 missing levels.
     Defaults otherwise: every subject-35 walk x 2 cameras, 2 arm trials of 150 frames.
     ``base_noise_px`` is the noise under the missing-data sweeps; ``arm_trajectory`` is "random" (smooth
-    random motion of every joint) or "milling" (the demo's contour path). Row keys: dataset, sweep ("noise",
+    random motion of every joint) or "milling" (the demo's contour path); ``sweeps`` a subset of
+    ("noise", "random", "limb"); ``tool_marker`` tracks the milling arm with :data:`TOOL_MARKER`. Row keys: dataset, sweep ("noise",
     "random", "limb"), noise_px, missing (target fraction), hidden (fraction hidden), error_mm (3D
     error: walks, of the reconstruction; arm, of the fitted robot), error_max_mm (worst run), runs (that
     succeeded), failed (runs that raised: shown in the table, left out of the means), seconds (per
@@ -298,11 +310,11 @@ def run_robustness(quick: bool = False, progress: Callable[[str], None] | None =
     say = progress or (lambda m: None)
     rows: list[dict] = []
     if "walk35" in datasets:
-        rows += _sweep_walk(quick, n_cameras or (1 if quick else 2), base_noise_px, say)
+        rows += _sweep_walk(quick, n_cameras or (1 if quick else 2), base_noise_px, say, sweeps)
     if "milling arm" in datasets:
         try:
             rows += _sweep_arm(quick, n_seeds or (1 if quick else 2), n_frames or (60 if quick else 150),
-                               base_noise_px, say, arm_trajectory)
+                               base_noise_px, say, arm_trajectory, sweeps, tool_marker)
         except ImportError as exc:  # Pinocchio missing: the human rows still count
             say(f"milling arm skipped: {exc}")
     _add_ratios(rows)

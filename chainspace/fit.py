@@ -40,8 +40,11 @@ variances of the best: a likelihood-ratio test), applies these rules:
   paths that fit alike, the one nearer the rest pose is kept (joints within about 70 degrees of
   their rest values come out right). Where the camera sees that plane nearly face-on the two
   branches meet, its tilt in depth is seen only to second order, and a noisy path can leave on the
-  other branch (the shipped milling arm's tool roll, on some views). Track a point off the plane
-  (``extra_frames={"tool_marker": ("spindle", [0, 0.08, 0])}``): the tilt is then seen to first order.
+  other branch (the shipped milling arm's tool roll, on some views). Nothing in the tracks or in
+  the smoothness of the motion tells the two apart there (the mirrored path is as smooth), so
+  ``fit.message`` names the plane, its joints and the frames within 15 degrees of face-on. Track a
+  point off the plane (``extra_frames={"tool_marker": ("spindle", [0, 0.08, 0])}``): the tilt is
+  then seen to first order.
 * *Ball-like shoulder with every base point on the first axis* (Panda, xArm7 and similar 7-axis
   arms): the whole arm beyond the shoulder mirrors exactly, in every frame, and the rest-pose rule
   picks wrongly as often as not. Track a point on the first link's housing, off its axis
@@ -1002,6 +1005,49 @@ def _depth_flips(robot: RobotKinematics, q: np.ndarray, view: _View, free: np.nd
     return list(qs.reshape(K, F, -1))
 
 
+def _face_on_planes(robot: RobotKinematics, q: np.ndarray, depth: np.ndarray,
+                    max_angle: float = np.radians(15.0)) -> list[tuple[str, list[str], np.ndarray]]:
+    """Planar parts whose depth mirror is a pose of the robot, seen nearly face-on.
+
+    For each link: when its parent point and every tracked point beyond it lie in one plane, and that
+    part mirrored in depth about the parent point is again a pose of the robot (reached by IK to a
+    thousandth of the reach in nine frames of ten), the frames where the plane's normal is within
+    ``max_angle`` (rad) of the camera's depth axis ``depth`` (F, 3). There the two branches meet and
+    the tracks cannot tell which one the motion continues on. Returns (parent point, the joints the
+    mirror turns, frame indices) per such part."""
+    F = len(q)
+    pos = robot.positions(q)
+    index = {name: i for i, name in enumerate(robot.chain.joints)}
+    reach = robot.reach()
+    eye = _View(np.ones(1), np.eye(3)[None], np.zeros((1, 3)), np.zeros(F, int))
+    found = []
+    for b, (parent, _) in enumerate(robot.chain.bones):
+        beyond = robot.chain.D[b] != 0
+        rel = pos[:, beyond] - pos[:, index[parent], None]  # (F, n, 3)
+        if rel.shape[1] < 2:
+            continue
+        _, sv, vt = np.linalg.svd(rel)
+        if sv[:, -1].max() > 1e-6 * reach or (sv[:, 1] < 0.05 * sv[:, 0]).any():
+            continue  # not a plane, or a line (a line's mirror is the axis's business)
+        mirrored = pos.copy()
+        mirrored[:, beyond] -= 2 * np.einsum("fjd,fd->fj", rel, depth)[..., None] * depth[:, None]
+        q_m = _sequence_lm(robot, q, mirrored, np.ones(pos.shape[:2]), eye, np.ones((F, robot.nv), bool),
+                           np.zeros(7, bool), 30, 1e-10, None)[0]
+        reached = np.linalg.norm(robot.positions(q_m) - mirrored, axis=-1).max(1) < 1e-3 * reach
+        frames = np.flatnonzero(np.abs(np.einsum("fd,fd->f", vt[:, -1], depth)) > np.cos(max_angle))
+        if reached.mean() >= 0.9 and frames.size:
+            turned = np.abs(_wrapped(robot, q_m - q))[reached].max(0) > 1e-3
+            found.append((parent, [robot.joint_names[k] for k in np.flatnonzero(turned)], frames))
+    return found
+
+
+def _frame_ranges(frames: np.ndarray) -> str:
+    """'3-7, 12' for frames [3, 4, 5, 6, 7, 12]."""
+    breaks = np.flatnonzero(np.diff(frames) > 1)
+    starts, ends = np.r_[frames[0], frames[breaks + 1]], np.r_[frames[breaks], frames[-1]]
+    return ", ".join(f"{a}" if a == e else f"{a}-{e}" for a, e in zip(starts, ends))
+
+
 def _nearest_rest_branch(robot: RobotKinematics, q: np.ndarray, free: np.ndarray) -> np.ndarray:
     """The path that puts every point where q (F, nq) puts it, on the branch nearest the rest pose.
 
@@ -1545,6 +1591,14 @@ def fit_joint_angles(
             observable[qi] = False
             relative[qi] = bool(gauge[v] and not blind[v] and not per_frame)
     notes = _notes(robot, blind, gauge & ~blind, per_frame)
+    if residual_px is not None:
+        depth = np.cross(cams[:, 0], cams[:, 1])
+        depth /= np.linalg.norm(depth, axis=-1, keepdims=True)
+        for parent, turned, frames in _face_on_planes(robot, q, depth):
+            notes.append(f"the tracked points beyond {parent} lie in one plane that the camera sees within 15 "
+                         f"degrees of face-on in frames {_frame_ranges(frames)}: there the motion can pass unseen "
+                         f"to its mirror image in depth ({', '.join(turned)} differ), so the branch after those "
+                         "frames is a guess; track a point off that plane (extra_frames) to settle it")
     msg = "; ".join(notes) if notes else "all joints observable"
     if mirror_tied:
         msg += ("; the motion and its mirror image fit the data equally well (weak perspective): "

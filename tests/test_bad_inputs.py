@@ -971,6 +971,14 @@ def test_hidden_points_patterns_of_the_robustness_benchmark(human):
     assert runs.size and runs.min() >= 0.75 * 120 * 0.5  # occlusions last about a second (cut at the ends)
 
 
+def test_robustness_runs_only_the_chosen_sweeps():
+    from chainspace.benchmark_robustness import _plan
+
+    assert {sweep for sweep, _, _ in _plan(True, 2.0, ["limb"])} == {"limb"}
+    assert [n for _, n, _ in _plan(True, 2.0, ["noise"])] == [0.0, 2.0, 5.0, 10.0]
+    assert {(n, m) for _, n, m in _plan(True, 3.0, ["random"])} == {(3.0, 0.0), (3.0, 0.2), (3.0, 0.5)}
+
+
 def _sweep_rows(errors, sweep="random", levels=(0.0, 0.1, 0.2, 0.3, 0.4, 0.5)):
     from chainspace.benchmark_robustness import _add_ratios
 
