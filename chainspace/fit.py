@@ -447,6 +447,11 @@ class _View:
     T: np.ndarray  # (C, D) translation
     cam_of: np.ndarray  # (F,) view index of each frame
 
+    @staticmethod
+    def identity(n_frames: int) -> _View:
+        """One view that leaves base-frame points as they are (3D targets in the base frame)."""
+        return _View(np.ones(1), np.eye(3)[None], np.zeros((1, 3)), np.zeros(n_frames, int))
+
     @property
     def per_frame(self) -> bool:
         return len(self.S) == len(self.cam_of) and len(self.S) > 1
@@ -968,6 +973,15 @@ def _viterbi_reanchored(robot: RobotKinematics, q: np.ndarray, tracks: np.ndarra
     return q_fix, _camera_view(robot.positions(q_fix), tracks, w, False)
 
 
+def _mirrored_beyond(pos: np.ndarray, beyond: np.ndarray, centre: int, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points pos (F, J, 3) with those marked ``beyond`` (J,) mirrored in depth (the unit axis n (F, 3))
+    about the plane through point ``centre``, facing the camera; and their depths (F, n) before."""
+    depth = np.einsum("fjd,fd->fj", pos[:, beyond] - pos[:, centre, None], n)
+    out = pos.copy()
+    out[:, beyond] -= 2 * depth[..., None] * n[:, None]
+    return out, depth
+
+
 def _depth_flips(robot: RobotKinematics, q: np.ndarray, view: _View, free: np.ndarray) -> list[np.ndarray]:
     """Starts on the other side of each link's depth ambiguity: per tree link, the configuration whose
     points best match the current ones with that link and everything beyond it mirrored in depth
@@ -981,11 +995,9 @@ def _depth_flips(robot: RobotKinematics, q: np.ndarray, view: _View, free: np.nd
     mirrored = []
     for b, (parent, _) in enumerate(robot.chain.bones):
         beyond = robot.chain.D[b] != 0
-        depth = np.einsum("fjd,fd->fj", pos[:, beyond] - pos[:, index[parent], None], n)
+        m, depth = _mirrored_beyond(pos, beyond, index[parent], n)
         if np.abs(depth).max() < 1e-9:
             continue
-        m = pos.copy()
-        m[:, beyond] -= 2 * depth[..., None] * n[:, None]
         mirrored.append(m)
     # also the same points reached with the joints from each one on started from either side of the
     # rest pose: the other branches that put every point where it is (a wrist turned half a turn with
@@ -999,14 +1011,17 @@ def _depth_flips(robot: RobotKinematics, q: np.ndarray, view: _View, free: np.nd
     targets = [pos] * len(partial) + mirrored
     starts = partial + [q] * len(mirrored)
     K = len(targets)
-    eye = _View(np.ones(1), np.eye(3)[None], np.zeros((1, 3)), np.zeros(K * F, int))
+    eye = _View.identity(K * F)
     qs = _sequence_lm(robot, np.concatenate(starts), np.concatenate(targets), np.ones((K * F, pos.shape[1])), eye,
                       np.tile(free, (K, 1)), np.zeros(7, bool), 30, 1e-8, None)[0]
     return list(qs.reshape(K, F, -1))
 
 
+FACE_ON_DEG = 15.0  # a plane within this angle of face-on is reported as seen face-on
+
+
 def _face_on_planes(robot: RobotKinematics, q: np.ndarray, depth: np.ndarray,
-                    max_angle: float = np.radians(15.0)) -> list[tuple[str, list[str], np.ndarray]]:
+                    max_angle: float = np.radians(FACE_ON_DEG)) -> list[tuple[str, list[str], np.ndarray]]:
     """Planar parts whose depth mirror is a pose of the robot, seen nearly face-on.
 
     For each link: when its parent point and every tracked point beyond it lie in one plane, and that
@@ -1019,7 +1034,7 @@ def _face_on_planes(robot: RobotKinematics, q: np.ndarray, depth: np.ndarray,
     pos = robot.positions(q)
     index = {name: i for i, name in enumerate(robot.chain.joints)}
     reach = robot.reach()
-    eye = _View(np.ones(1), np.eye(3)[None], np.zeros((1, 3)), np.zeros(F, int))
+    eye = _View.identity(F)
     found = []
     for b, (parent, _) in enumerate(robot.chain.bones):
         beyond = robot.chain.D[b] != 0
@@ -1029,8 +1044,7 @@ def _face_on_planes(robot: RobotKinematics, q: np.ndarray, depth: np.ndarray,
         _, sv, vt = np.linalg.svd(rel)
         if sv[:, -1].max() > 1e-6 * reach or (sv[:, 1] < 0.05 * sv[:, 0]).any():
             continue  # not a plane, or a line (a line's mirror is the axis's business)
-        mirrored = pos.copy()
-        mirrored[:, beyond] -= 2 * np.einsum("fjd,fd->fj", rel, depth)[..., None] * depth[:, None]
+        mirrored = _mirrored_beyond(pos, beyond, index[parent], depth)[0]
         q_m = _sequence_lm(robot, q, mirrored, np.ones(pos.shape[:2]), eye, np.ones((F, robot.nv), bool),
                            np.zeros(7, bool), 30, 1e-10, None)[0]
         reached = np.linalg.norm(robot.positions(q_m) - mirrored, axis=-1).max(1) < 1e-3 * reach
@@ -1057,7 +1071,7 @@ def _nearest_rest_branch(robot: RobotKinematics, q: np.ndarray, free: np.ndarray
     then nearness to the rest pose), and changes no point by more than a thousandth of the reach.
     Returns q itself when nothing changes."""
     pos = robot.positions(q)
-    eye = _View(np.ones(1), np.eye(3)[None], np.zeros((1, 3)), np.zeros(len(q), int))
+    eye = _View.identity(len(q))
     tol = 1e-3 * robot.reach()
     alt = _viterbi_branches(robot, q, pos, np.ones(pos.shape[:2]), eye, free, 0.1 * tol, n_random=4)
     moved = np.linalg.norm(robot.positions(alt) - pos, axis=-1).max()
@@ -1591,11 +1605,9 @@ def fit_joint_angles(
             observable[qi] = False
             relative[qi] = bool(gauge[v] and not blind[v] and not per_frame)
     notes = _notes(robot, blind, gauge & ~blind, per_frame)
-    if residual_px is not None:
-        depth = np.cross(cams[:, 0], cams[:, 1])
-        depth /= np.linalg.norm(depth, axis=-1, keepdims=True)
-        for parent, turned, frames in _face_on_planes(robot, q, depth):
-            notes.append(f"the tracked points beyond {parent} lie in one plane that the camera sees within 15 "
+    if residual_px is not None:  # view: the fitted camera(s); its third row is the depth axis
+        for parent, turned, frames in _face_on_planes(robot, q, view.R[view.cam_of][:, 2]):
+            notes.append(f"the tracked points beyond {parent} lie in one plane that the camera sees within {FACE_ON_DEG:g} "
                          f"degrees of face-on in frames {_frame_ranges(frames)}: there the motion can pass unseen "
                          f"to its mirror image in depth ({', '.join(turned)} differ), so the branch after those "
                          "frames is a guess; track a point off that plane (extra_frames) to settle it")
