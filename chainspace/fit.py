@@ -31,7 +31,12 @@ variances of the best: a likelihood-ratio test), applies these rules:
   (its tracked points in one vertical plane at rest, as on most industrial arms) the mirror is a
   valid motion of the same robot, seen from the other side of its base plane. ``view_from="above"``
   (default) keeps the one whose camera looks down on the base plane (or level). The mirror about the
-  robot's own symmetry plane, seen through a mirrored camera, is tried too.
+  robot's own symmetry plane, seen through a mirrored camera, is tried too. For a robot only nearly
+  symmetric (a tool marker off the plane), the wrong mirror image can fit the tracks slightly better
+  frame by frame, by moving less plausibly: with the acceleration prior on (the default) the
+  candidates are compared by the smoothed objective (robust residuals plus the prior), the mirror
+  image of the winner is smoothed and scored too, and the camera side decides only among those that
+  tie there.
 * *Planar bodies on ball-like joints.* Where every tracked point beyond a joint group lies in one
   plane with its centre (a spherical wrist carrying a planar tool; a 7-axis arm's spherical
   shoulder), that part mirrored in depth about the centre is again a pose of the robot, in every
@@ -84,6 +89,7 @@ from __future__ import annotations
 
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -1262,6 +1268,71 @@ def _notes(robot: RobotKinematics, blind: np.ndarray, gauge: np.ndarray, per_fra
 # ---------------------------------------------------------------------------------------------------
 # the entry point
 # ---------------------------------------------------------------------------------------------------
+def _looks_down(view: _View) -> float:
+    """How much the camera(s) look down on the base plane: minus the z of the forward axis (the
+    rotation's third row, image y pointing down), averaged; > 0 from above."""
+    return -float(np.mean(view.R[:, 2, 2]))
+
+
+def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarray, w: np.ndarray, mu: float,
+                   sigma: float, max_iter: int, tol: float, wrong_side: Callable[[dict], bool],
+                   reflected: Callable[[dict], dict],
+                   rebranch: Callable[[dict, tuple], tuple[np.ndarray, _View]]) -> tuple[dict, bool, int]:
+    """The fit of the most probable motion under the smoothness prior, among ``results`` (refined fits,
+    preferred first): each distinct fit that the tracks alone nearly tie is smoothed (:func:`_smooth_lm`)
+    and scored by the smoothed objective, robust residuals plus mu |joint accelerations|^2, with one
+    Huber threshold for all; a direction that no point seen in a frame moves is free there (``free_prior``:
+    the prior interpolates it). When the lowest is seen from the wrong side (``wrong_side``), its mirror
+    image (``reflected``: a start with ``q``, ``view``, ``free_prior``) is smoothed and scored too. Each
+    smoothed fit then gets the branch of every frame chosen again (``rebranch``, a Viterbi pass) and is
+    smoothed again while that lowers its score. Of the fits within 25 noise variances of the lowest
+    score, the first seen from the right side wins, else the first in ``results``; it is returned with
+    its smoothed ``out``.
+
+    Why: a motion that fits the tracks a little better frame by frame (a wrong mirror image of a
+    nearly symmetric robot, a branch that jumps) may do so only by moving less plausibly, and the
+    prior is what says how plausible a motion is. The refinement frame by frame can also leave jumps
+    in one mirror image and not in the other: the smooth one, reflected, gives that side a smooth
+    start. Returns (fit, whether another distinct fit tied, iterations).
+    """
+    best_sse = min(r["sse"] for r in results)
+    delta = results[0]["delta"]
+    L = _second_differences(len(tracks))
+    scored: list[tuple[float, dict]] = []
+    n_iter = 0
+
+    def smoothed(r, q, view):
+        nonlocal n_iter
+        out = _smooth_lm(robot, robot.continuous(q), tracks, w, view, r["free_prior"], np.ones(6, bool), max_iter,
+                         tol, delta, mu)
+        n_iter += out[5]
+        return float((w * _huber(out[2], delta)[0]).sum()) + mu * float(((L @ out[0]) ** 2).sum()), out
+
+    def score(r, q, view):
+        objective, out = smoothed(r, q, view)
+        for _ in range(2):  # the smoothed motion may still jump branches that a local step cannot undo
+            q_b, view_b = rebranch(r, out)
+            if np.abs(_wrapped(robot, q_b - out[0])).max() < 0.05:
+                break
+            objective_b, out_b = smoothed(r, q_b, view_b)
+            if objective_b >= (1 - 1e-3) * objective:
+                break
+            objective, out = objective_b, out_b
+        scored.append((objective, dict(r, out=out, q=out[0], down=_looks_down(out[1]))))
+
+    for r in results:
+        near = r["sse"] <= 1.1 * best_sse + 25.0 * sigma ** 2
+        if near and not any(np.abs(_wrapped(robot, r["q"] - o["q"])).max() < 0.05 for _, o in scored):
+            score(r, r["out"][0], r["out"][1])  # else a poor fit of the tracks, or one already scored
+    lowest, r = min(scored, key=lambda sr: sr[0])
+    if wrong_side(r):
+        start = reflected(r)
+        score(start, start["q"], start["view"])
+    lowest = min(sr[0] for sr in scored)
+    tied = [r for sr, r in scored if sr - lowest <= 25.0 * sigma ** 2]
+    return sorted(tied, key=wrong_side)[0], len(tied) > 1, n_iter
+
+
 def _inputs(rec_or_poses, urdf, chain, tracks, confidence):
     """Unpack and check what the caller gave: (poses, chain, urdf path, tracks, confidence)."""
     if hasattr(rec_or_poses, "poses"):
@@ -1442,6 +1513,7 @@ def fit_joint_angles(
 
     # ---- step 2: refine on the tracks; both mirrors unless the 3D fit told them apart clearly
     residual_px = cams = ts2 = None
+    smoothed = False  # by the acceleration prior, which also fills the frames where a direction is unseen
     converged = best["conv"]
     if refine and tracks is not None:
         t1 = time.perf_counter()
@@ -1463,6 +1535,8 @@ def fit_joint_angles(
             pos, jac = robot.jacobians(c["q"])
             g2 = (_gauge_directions(pos, jac, w2, P0, per_frame) | c["gauge"]) & ~blind
             q, free = _hold(robot, c["q"], blind, g2 if per_frame else c["gauge"], per_frame, unseen2)
+            # with the smoothness prior, a direction unseen in some frames follows its neighbours there
+            free_prior = _hold(robot, c["q"], blind, g2 if per_frame else c["gauge"], per_frame)[1]
             view = c["camera0"] if "camera0" in c else _camera_view(c["pos"], tracks, w2, per_frame)
             # per-frame IK on the tracks with this camera (robust far from the solution), then all together
             q = _sequential_ik(robot, tracks, w2, view, free, q[0], c["gauge"])
@@ -1503,10 +1577,9 @@ def fit_joint_angles(
                 out = _sequence_lm(robot, q_rest_branch, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol,
                                    delta)
             n_iter += out[-1]
-            # camera looking down on the base plane: its forward axis (third row, image y down) has z < 0
             return dict(cost=float(np.sqrt((w2 * out[2] ** 2).sum() / w2.sum())), sse=float((w2 * out[2] ** 2).sum()),
                         n_obs=2 * int((w2 > 0).sum()), out=out, c=c, g2=g2,
-                        q=out[0], gauge=g2, down=-float(np.mean(out[1].R[:, 2, 2])), free=free, delta=delta)
+                        q=out[0], gauge=g2, down=_looks_down(out[1]), free=free, free_prior=free_prior, delta=delta)
 
         def seen_from_wrong_side(r):
             return view_from is not None and (r["down"] < -0.02 if view_from == "above" else r["down"] > 0.02)
@@ -1537,9 +1610,9 @@ def fit_joint_angles(
             return rs, n_tied > 1
 
         results, mirror_tied = order(results)
-        def mirrored(r, M):
+        def reflection(r, M):
             # r's motion reflected by M (3 x 3, base frame), fitted in 3D from the refined motion (a far
-            # better start than the reconstruction), then refined on the tracks
+            # better start than the reconstruction): a candidate to refine on the tracks
             nonlocal n_iter
             X_alt = np.einsum("ij,fkj->fki", M, r["out"][3])
             q_a, view_a, it_a = _fit_3d(robot, X_alt, w3, free_blind, transform, max_iter, tol, gauge0)
@@ -1548,7 +1621,23 @@ def fit_joint_angles(
             q_a, view_a, rn_a, pos_a, conv_a, it_b = _sequence_lm(robot, q_a, X_alt, w3, view_a, free_a,
                                                                   free_sim, 20, tol, None)
             n_iter += it_a + it_b
-            return refine_2d(dict(sign=-r["c"]["sign"], q=q_a, pos=pos_a, gauge=r["c"]["gauge"], conv=conv_a))
+            return dict(sign=-r["c"]["sign"], q=q_a, pos=pos_a, gauge=r["c"]["gauge"], conv=conv_a)
+
+        def depth_mirror(r):
+            R0 = r["out"][1].R[0] if not per_frame else r["out"][1].R.mean(0)
+            return R0.T @ np.diag([1.0, 1.0, -1.0]) @ R0
+
+        def rebranch(r, out):
+            sig = max(float(np.median(out[2][w2 > 0])) / 1.1774, px_floor)
+            return _viterbi_reanchored(robot, out[0], tracks, w2, out[1], r["free"], sig, r["c"]["gauge"], per_frame,
+                                       blind, unseen2)
+
+        def reflected_start(r):
+            # r's depth mirror image, a start for the smoothed fit (held as the refinement holds)
+            c = reflection(r, depth_mirror(r))
+            q = _hold(robot, c["q"], blind, c["gauge"], False, unseen2)[0]
+            return dict(r, c=c, q=q, free_prior=_hold(robot, q, blind, c["gauge"], False)[1],
+                        view=_camera_view(robot.positions(q), tracks, w2, False))
 
         if transform == "similarity":
             # Two reflections keep every track: the depth mirror (weak perspective), and for a robot
@@ -1560,20 +1649,18 @@ def fit_joint_angles(
             while len(reflected) < 2 and not any(results[0] is r for r in reflected):
                 r0 = results[0]
                 reflected.append(r0)
-                R0 = r0["out"][1].R[0] if not per_frame else r0["out"][1].R.mean(0)
-                alts = [mirrored(r0, R0.T @ np.diag([1.0, 1.0, -1.0]) @ R0), mirrored(r0, np.diag([1.0, -1.0, 1.0]))]
+                alts = [refine_2d(reflection(r0, M)) for M in (depth_mirror(r0), np.diag([1.0, -1.0, 1.0]))]
                 results, mirror_tied = order(results + alts)
         r = results[0]
         w_ok = w2 > 0
         sigma = float(np.median(r["out"][2][w_ok])) / 1.1774 if w_ok.any() else 0.0
         if accel_std is not None and robot.euclidean and F >= 3 and not per_frame and sigma > 1e-6:
             # joint accelerations ~ N(0, accel_std^2) against pixel noise sigma: the prior's weight
-            out = r["out"]
             mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
-            out2 = _smooth_lm(robot, robot.continuous(out[0]), tracks, w2, out[1], r["free"], np.ones(6, bool), max_iter, tol,
-                              r["delta"], mu)
-            n_iter += out2[5]
-            r["out"] = out2
+            smoothed = True
+            r, mirror_tied, it = _most_probable(robot, results, tracks, w2, mu, max(sigma, px_floor), max_iter, tol,
+                                                seen_from_wrong_side, reflected_start, rebranch)
+            n_iter += it
         (q, view, rn, pos_base, conv2, _), best, gauge = r["out"], r["c"], r["g2"]
         converged = conv2  # the 3D stage only started this one
         residual_px = _rms_per_frame(rn, w2)
@@ -1583,7 +1670,7 @@ def fit_joint_angles(
     else:
         q, pos_base = best["q"], best["pos"]
     unseen = unseen2 if refine and tracks is not None else unseen3
-    if (unseen & ~blind).any():  # the solvers held these; the neighbours' values, interpolated, are better
+    if not smoothed and (unseen & ~blind).any():  # the solvers held these; the neighbours' values, interpolated
         q = _fill_unseen(robot, q, unseen & ~(blind | gauge))
         pos_base = robot.positions(q)
 

@@ -1027,6 +1027,9 @@ def test_robustness_targets_detect_a_cliff():
         ((0, .217, .587), (127.8, 72.9, 551.2), True),
         # a bad sweep that ends in a jump: its mean slope is large, the jump still counts
         ((0, .1, .2, .3, .4, .5), (300, 310, 320, 330, 340, 900), True),
+        # the milling arm's noise sweep: exact at 0 px, then rising with the noise: no jump from exact
+        ((0, 1, 2, 3, 5), (1e-12, 5.1, 8.1, 11.0, 18.8), False),
+        ((0, 1, 2, 3, 5), (1e-12, 5.1, 8.1, 108.9, 18.8), True),
         # doubling by less than 5 mm is not material
         ((0, .1, .2), (1.0, 2.5, 3.0), False),
         # unsorted levels are sorted first
@@ -1039,6 +1042,12 @@ def test_cliff_rule_on_synthetic_sweeps(levels, errors, cliff):
     c = find_cliffs(levels, errors)
     assert bool(c["cliff"].any()) is cliff, (c["slope_ratio"], c["jump"])
     assert len(c["rise"]) == len(levels) - 1 and (np.diff(c["x"]) >= 0).all()
+
+
+def test_no_ratio_to_an_exact_result():
+    rows = _sweep_rows([1e-12, 5.1, 8.1], sweep="noise", levels=(0.0, 1.0, 2.0))
+    assert all(np.isnan(r["ratio"]) for r in rows)
+    assert _sweep_rows([8.0, 8.0, 10.0])[2]["ratio"] == 1.25
 
 
 def test_cliff_rule_which_rule_fires():
