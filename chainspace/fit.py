@@ -1523,6 +1523,7 @@ def fit_joint_angles(
         # image-size tolerance for exact data: a thousandth of the tracks' extent (0.8 px at 800 px)
         px_floor = 1e-3 * float(max(np.ptp(tracks[..., 0][w2 > 0]), np.ptp(tracks[..., 1][w2 > 0])))
         unseen2 = _unseen(robot, w2)
+        never2 = unseen2 & unseen2.all(0)
 
         def robust_cost(rn):
             return float((w2 * _huber(rn, delta_used[0])[0]).sum())
@@ -1536,7 +1537,8 @@ def fit_joint_angles(
             g2 = (_gauge_directions(pos, jac, w2, P0, per_frame) | c["gauge"]) & ~blind
             q, free = _hold(robot, c["q"], blind, g2 if per_frame else c["gauge"], per_frame, unseen2)
             # with the smoothness prior, a direction unseen in some frames follows its neighbours there
-            free_prior = _hold(robot, c["q"], blind, g2 if per_frame else c["gauge"], per_frame)[1]
+            # (one never seen stays held: the prior alone would leave its level and trend free)
+            free_prior = _hold(robot, c["q"], blind, g2 if per_frame else c["gauge"], per_frame, never2)[1]
             view = c["camera0"] if "camera0" in c else _camera_view(c["pos"], tracks, w2, per_frame)
             # per-frame IK on the tracks with this camera (robust far from the solution), then all together
             q = _sequential_ik(robot, tracks, w2, view, free, q[0], c["gauge"])
@@ -1636,7 +1638,7 @@ def fit_joint_angles(
             # r's depth mirror image, a start for the smoothed fit (held as the refinement holds)
             c = reflection(r, depth_mirror(r))
             q = _hold(robot, c["q"], blind, c["gauge"], False, unseen2)[0]
-            return dict(r, c=c, q=q, free_prior=_hold(robot, q, blind, c["gauge"], False)[1],
+            return dict(r, c=c, q=q, free_prior=_hold(robot, q, blind, c["gauge"], False, never2)[1],
                         view=_camera_view(robot.positions(q), tracks, w2, False))
 
         if transform == "similarity":
