@@ -685,6 +685,13 @@ def _rms_per_frame(rn: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.where(wf > 0, np.sqrt((w * rn ** 2).sum(1) / np.maximum(wf, 1e-300)), np.nan)
 
 
+def _noise_sigma(rn: np.ndarray, w: np.ndarray) -> float:
+    """Pixel noise (per coordinate) from 2D residual norms rn (F, J): the median norm of the used
+    points over 1.1774, the median of a 2D Gaussian's norm in units of sigma; 0 when none is used."""
+    r = rn[w > 0]
+    return float(np.median(r)) / 1.1774 if r.size else 0.0
+
+
 def _robust_scale(rn: np.ndarray, w: np.ndarray, floor: float) -> float:
     """Huber threshold: 3 robust standard deviations of the used residual norms."""
     r = rn[w > 0]
@@ -1324,7 +1331,7 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
         near = r["sse"] <= 1.1 * best_sse + 25.0 * sigma ** 2
         if near and not any(np.abs(_wrapped(robot, r["q"] - o["q"])).max() < 0.05 for _, o in scored):
             score(r, r["out"][0], r["out"][1])  # else a poor fit of the tracks, or one already scored
-    lowest, r = min(scored, key=lambda sr: sr[0])
+    _, r = min(scored, key=lambda sr: sr[0])
     if wrong_side(r):
         start = reflected(r)
         score(start, start["q"], start["view"])
@@ -1554,7 +1561,7 @@ def fit_joint_angles(
             delta_used[0] = delta
             out = _sequence_lm(robot, q, tracks, w2, view, free, np.ones(6, bool), max_iter, tol, delta)
             for _ in range(2):  # then the branch of every frame, chosen for the whole sequence
-                sig = max(float(np.median(out[2][w2 > 0])) / 1.1774, px_floor)
+                sig = max(_noise_sigma(out[2], w2), px_floor)
                 q_fix, view_fix = _viterbi_reanchored(robot, out[0], tracks, w2, out[1], free, sig, c["gauge"],
                                                       per_frame, blind, unseen2)
                 if np.abs(_wrapped(robot, q_fix - out[0])).max() < 0.05:
@@ -1630,7 +1637,7 @@ def fit_joint_angles(
             return R0.T @ np.diag([1.0, 1.0, -1.0]) @ R0
 
         def rebranch(r, out):
-            sig = max(float(np.median(out[2][w2 > 0])) / 1.1774, px_floor)
+            sig = max(_noise_sigma(out[2], w2), px_floor)
             return _viterbi_reanchored(robot, out[0], tracks, w2, out[1], r["free"], sig, r["c"]["gauge"], per_frame,
                                        blind, unseen2)
 
@@ -1654,8 +1661,7 @@ def fit_joint_angles(
                 alts = [refine_2d(reflection(r0, M)) for M in (depth_mirror(r0), np.diag([1.0, -1.0, 1.0]))]
                 results, mirror_tied = order(results + alts)
         r = results[0]
-        w_ok = w2 > 0
-        sigma = float(np.median(r["out"][2][w_ok])) / 1.1774 if w_ok.any() else 0.0
+        sigma = _noise_sigma(r["out"][2], w2)
         if accel_std is not None and robot.euclidean and F >= 3 and not per_frame and sigma > 1e-6:
             # joint accelerations ~ N(0, accel_std^2) against pixel noise sigma: the prior's weight
             mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
