@@ -54,6 +54,13 @@ variances of the best: a likelihood-ratio test), applies these rules:
   arms): the whole arm beyond the shoulder mirrors exactly, in every frame, and the rest-pose rule
   picks wrongly as often as not. Track a point on the first link's housing, off its axis
   (``extra_frames={"shoulder_marker": ("panda_link1", [0.08, 0, -0.1])}``); the benchmark does.
+* *Seen again after a long gap.* A joint unseen for long enough to turn half a circle at the branch
+  search's step bound (``_LONG_GAP`` frames), then seen again, may come back on any branch, and the
+  frame that sees it again may fit a wrong one as well as the true one (a wrist seen in one frame
+  after its tool was hidden for more than a second). The acceleration prior charges nothing for a
+  straight ramp across the gap, so every branch of that frame, bridged to the last sighting by a
+  straight line and smoothed, can score alike: of those that tie, the motion that moves least
+  (the sum of squared joint steps) is kept.
 * *Singularities.* Where two joint axes align (a wrist stretched straight; a 7-axis arm's upper arm
   along its first axis) only the sum of their angles is seen, and a path may continue on either
   branch. Nothing in the tracks can split them there; plan paths (and camera checks) away from them,
@@ -964,6 +971,61 @@ def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray,
     return robot.continuous(qs[k, np.arange(F)])
 
 
+_LONG_GAP = 21  # frames: half a turn at the branch search's free step (0.15 rad per frame)
+
+
+def _held_runs(held: np.ndarray) -> np.ndarray:
+    """(F, n) length of the run of held frames that ends at each frame (0 where not held)."""
+    runs = np.zeros(held.shape, int)
+    runs[0] = held[0]
+    for f in range(1, len(held)):
+        runs[f] = (runs[f - 1] + 1) * held[f]
+    return runs
+
+
+def _across_long_gaps(robot: RobotKinematics, q: np.ndarray, tracks: np.ndarray, w: np.ndarray, view: _View,
+                      free: np.ndarray, sigma: float, min_gap: int, n_random: int = 24, seed: int = 0) -> list[np.ndarray]:
+    """Starts that bridge each long gap to another branch: where a direction is seen again after
+    ``min_gap`` or more frames unseen, the IK solutions of that frame (from random starts) that fit it
+    within 25 noise variances of the best, each joined to the last sighting by a straight line over
+    the gap. After such a gap the joint may come back on any branch, and the frame alone may fit a
+    wrong one as well as the true one."""
+    runs = _held_runs(~free)
+    back = np.flatnonzero(((runs[:-1] >= min_gap) & free[1:]).any(1)) + 1  # frames seen again
+    if not len(back):
+        return []
+    rng = np.random.default_rng(seed)
+    lo = np.where(robot.limited, np.maximum(robot.lower, -np.pi), -np.pi)
+    hi = np.where(robot.limited, np.minimum(robot.upper, np.pi), np.pi)
+    starts = []
+    for b in back[:4]:  # a few: each costs a batched IK of that frame and a smoothed fit per branch
+        idx = np.full(n_random + 1, b)
+        q0 = np.vstack([q[b], robot.clip(rng.uniform(lo, hi, (n_random, robot.nq)))])
+        held = np.zeros(robot.nq, bool)
+        vq = robot.v_of_q >= 0
+        held[vq] = ~free[b, robot.v_of_q[vq]]
+        q0 = np.where(held, q[b], q0)
+        qs, _, rn, _, _, _ = _sequence_lm(robot, q0, tracks[idx], w[idx], view.take(idx), free[idx],
+                                          np.zeros(4 + tracks.shape[-1], bool), 30, 1e-8, None)
+        sse = (w[b] * rn ** 2).sum(1)
+        kept: list[np.ndarray] = []
+        for k in np.argsort(sse):
+            if sse[k] > sse.min() + 25.0 * sigma ** 2:
+                break
+            if any(np.abs(_wrapped(robot, qs[k] - o)).max() < 0.05 for o in kept + [q[b]]):
+                continue
+            kept.append(qs[k])
+            bridged = robot.continuous(q.copy())
+            bridged[b] = robot.wrap_near(qs[k][None], bridged[b - 1])[0]
+            for v in np.flatnonzero(runs[b - 1] >= min_gap):
+                qi = robot.q_of_v[v]
+                a = b - runs[b - 1, v]
+                if qi >= 0 and a > 0:
+                    bridged[a:b, qi] = np.linspace(bridged[a - 1, qi], bridged[b, qi], b - a + 2)[1:-1]
+            starts.append(bridged)
+    return starts
+
+
 def _viterbi_reanchored(robot: RobotKinematics, q: np.ndarray, tracks: np.ndarray, w: np.ndarray, view: _View,
                         free: np.ndarray, sigma: float, gauge: np.ndarray, per_frame: bool, blind: np.ndarray,
                         unseen: np.ndarray) -> tuple[np.ndarray, _View]:
@@ -1281,6 +1343,11 @@ def _looks_down(view: _View) -> float:
     return -float(np.mean(view.R[:, 2, 2]))
 
 
+def _motion(robot: RobotKinematics, q: np.ndarray) -> float:
+    """Sum of squared joint steps between frames (rad^2)."""
+    return float((_wrapped(robot, np.diff(q, axis=0)) ** 2).sum())
+
+
 def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarray, w: np.ndarray, mu: float,
                    sigma: float, max_iter: int, tol: float, wrong_side: Callable[[dict], bool],
                    reflected: Callable[[dict], dict],
@@ -1331,7 +1398,18 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
         near = r["sse"] <= 1.1 * best_sse + 25.0 * sigma ** 2
         if near and not any(np.abs(_wrapped(robot, r["q"] - o["q"])).max() < 0.05 for _, o in scored):
             score(r, r["out"][0], r["out"][1])  # else a poor fit of the tracks, or one already scored
-    _, r = min(scored, key=lambda sr: sr[0])
+    best, r = min(scored, key=lambda sr: sr[0])
+    # a joint seen again after a long gap: the bridges to its other branches that score alike (the
+    # acceleration prior charges nothing for a straight ramp), the one that moves least wins
+    least = (_motion(robot, r["q"]), best, r)
+    for q_b in _across_long_gaps(robot, r["q"], tracks, w, r["out"][1], r["free"], sigma, _LONG_GAP):
+        objective, out = smoothed(r, q_b, r["out"][1])
+        moved = _motion(robot, out[0])
+        if objective <= best + 25.0 * sigma ** 2 and moved < least[0]:
+            least = (moved, objective, dict(r, out=out, q=out[0], down=_looks_down(out[1])))
+    if least[2] is not r:
+        scored = [sr for sr in scored if sr[1] is not r] + [least[1:]]
+        r = least[2]
     if wrong_side(r):
         start = reflected(r)
         score(start, start["q"], start["view"])
