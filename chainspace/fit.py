@@ -843,11 +843,8 @@ def _branch_near_rest(robot: RobotKinematics, Y: np.ndarray, w: np.ndarray, view
     rest pose is taken, found by IK from many seeds.
     """
     rng = np.random.default_rng(seed)
-    lo = np.where(robot.limited, np.maximum(robot.lower, -np.pi), -np.pi)
-    hi = np.where(robot.limited, np.minimum(robot.upper, np.pi), np.pi)
-    seeds = rng.uniform(lo, hi, (n_seeds, robot.nq)) if robot.euclidean else \
-        np.broadcast_to(robot.q_rest, (n_seeds, robot.nq))
-    seeds = np.concatenate([robot.q_rest[None], robot.q_seed[None], q_now[None], robot.clip(seeds)])
+    seeds = _random_q(robot, rng, n_seeds) if robot.euclidean else np.broadcast_to(robot.q_rest, (n_seeds, robot.nq))
+    seeds = np.concatenate([robot.q_rest[None], robot.q_seed[None], q_now[None], seeds])
     seeds[:, ~free] = q_now[~free] if robot.euclidean else seeds[:, ~free]
     n = len(seeds)
     v = _View(view.S, view.R, view.T, np.zeros(n, int))
@@ -915,10 +912,22 @@ def _sequential_ik(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, view: _
 def _seeded(robot: RobotKinematics, q: np.ndarray, free: np.ndarray, other_side: bool = False) -> np.ndarray:
     """Start configurations (F, nq): the solver seed near the rest pose (or the one turned the other
     way) where a direction is free, the current q where it is held."""
-    held = np.zeros(q.shape, bool)
+    return np.where(_held_q(robot, free), q, robot.q_seed_other if other_side else robot.q_seed)
+
+
+def _held_q(robot: RobotKinematics, free: np.ndarray) -> np.ndarray:
+    """(..., nq) entries of q held where free (..., nv) holds their direction."""
+    held = np.zeros(free.shape[:-1] + (robot.nq,), bool)
     vq = robot.v_of_q >= 0
-    held[:, vq] = ~free[:, robot.v_of_q[vq]]
-    return np.where(held, q, robot.q_seed_other if other_side else robot.q_seed)
+    held[..., vq] = ~free[..., robot.v_of_q[vq]]
+    return held
+
+
+def _random_q(robot: RobotKinematics, rng: np.random.Generator, n: int) -> np.ndarray:
+    """(n, nq) configurations drawn uniformly within the joint limits (a turn either way where none)."""
+    lo = np.where(robot.limited, np.maximum(robot.lower, -np.pi), -np.pi)
+    hi = np.where(robot.limited, np.minimum(robot.upper, np.pi), np.pi)
+    return robot.clip(rng.uniform(lo, hi, (n, robot.nq)))
 
 
 def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
@@ -939,13 +948,8 @@ def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray,
     """
     F, nq = q.shape
     rng = np.random.default_rng(seed)
-    lo = np.where(robot.limited, np.maximum(robot.lower, -np.pi), -np.pi)
-    hi = np.where(robot.limited, np.minimum(robot.upper, np.pi), np.pi)
-    held_q = np.zeros((F, nq), bool)  # entries held in a frame keep their value in every start
-    vq = robot.v_of_q >= 0
-    held_q[:, vq] = ~free[:, robot.v_of_q[vq]]
-    rand = robot.clip(rng.uniform(lo, hi, (n_random, nq))) if robot.euclidean else \
-        np.broadcast_to(robot.q_rest, (n_random, nq))
+    held_q = _held_q(robot, free)  # entries held in a frame keep their value in every start
+    rand = _random_q(robot, rng, n_random) if robot.euclidean else np.broadcast_to(robot.q_rest, (n_random, nq))
     starts = [q, _seeded(robot, q, free), _seeded(robot, q, free, True)] + [np.where(held_q, q, r) for r in rand] + \
         [np.where(held_q, q, m) for m in _depth_flips(robot, q, view, free)]
     K = len(starts)
@@ -995,16 +999,10 @@ def _across_long_gaps(robot: RobotKinematics, q: np.ndarray, tracks: np.ndarray,
     if not len(back):
         return []
     rng = np.random.default_rng(seed)
-    lo = np.where(robot.limited, np.maximum(robot.lower, -np.pi), -np.pi)
-    hi = np.where(robot.limited, np.minimum(robot.upper, np.pi), np.pi)
     starts = []
     for b in back[:4]:  # a few: each costs a batched IK of that frame and a smoothed fit per branch
         idx = np.full(n_random + 1, b)
-        q0 = np.vstack([q[b], robot.clip(rng.uniform(lo, hi, (n_random, robot.nq)))])
-        held = np.zeros(robot.nq, bool)
-        vq = robot.v_of_q >= 0
-        held[vq] = ~free[b, robot.v_of_q[vq]]
-        q0 = np.where(held, q[b], q0)
+        q0 = np.where(_held_q(robot, free[b]), q[b], np.vstack([q[b], _random_q(robot, rng, n_random)]))
         qs, _, rn, _, _, _ = _sequence_lm(robot, q0, tracks[idx], w[idx], view.take(idx), free[idx],
                                           np.zeros(4 + tracks.shape[-1], bool), 30, 1e-8, None)
         sse = (w[b] * rn ** 2).sum(1)
