@@ -163,6 +163,7 @@ class Suite(str, Enum):
     robots = "robots"
     speed = "speed"
     robustness = "robustness"
+    hidden_ends = "hidden-ends"
 
 
 Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace existing output files.")]
@@ -385,6 +386,7 @@ _SUITES = {
     "speed": [("benchmark", "run_speed", "format_speed")],
     "robustness": [("benchmark_robustness", "run_robustness", "format_robustness")],
     "robots": [("benchmark_robots", "run_robot_benchmark", "format_robot_table")],
+    "hidden-ends": [("benchmark_hidden_ends", "run_hidden_ends", "format_hidden_ends")],
 }
 
 

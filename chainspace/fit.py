@@ -19,7 +19,13 @@ sequence, the joint angles ``q`` that put those frames where the points were see
    block per frame plus the shared camera, which a Schur complement eliminates, so an iteration costs
    one Pinocchio Jacobian pass over the frames and small batched solves. A prior on joint
    accelerations (``accel_std``) then averages the pixel noise over neighbouring frames; its banded
-   system is solved by a banded Cholesky factorisation.
+   system is solved by a banded Cholesky factorisation. Where no tracked point a joint moves is seen,
+   the prior alone carries the joint: between two sightings it bridges them smoothly, but before the
+   first or after the last one it would carry the joint on at its last speed for ever (a straight
+   ramp costs no acceleration). ``speed_decay_s`` also charges the joint's speed there, so that it
+   decays with that time constant and the joint comes to rest. Off by default: over a second unseen
+   neither guess wins on the benchmarks (README, robustness section; ``benchmarks/bench_hidden_ends.py``),
+   but over longer stretches at the ends a constant speed runs on to the joint limits.
 
 Ambiguities the tracks cannot settle, and the rules that settle them
 --------------------------------------------------------------------
@@ -526,18 +532,45 @@ def _normal_equations(view: _View, jac: np.ndarray, y: np.ndarray, res: np.ndarr
     return Hqq, Hqc, gq, Hcc, gc
 
 
-def _second_differences(F: int):
-    """(F-2, F) sparse second-difference operator: (L q)[f] = q[f] - 2 q[f+1] + q[f+2]."""
+def _beyond_sightings(robot: RobotKinematics, w: np.ndarray) -> np.ndarray:
+    """(F-1, nv) steps between frames f and f+1 that lie before the first or after the last frame in
+    which a point moved by each direction is seen (w (F, J) > 0); False for directions never seen."""
+    seen = ~_unseen(robot, w)
+    F = len(w)
+    first = np.argmax(seen, axis=0)
+    last = F - 1 - np.argmax(seen[::-1], axis=0)
+    f = np.arange(F - 1)[:, None]
+    return ((f >= last) | (f + 1 <= first)) & seen.any(0)
+
+
+def _motion_prior(robot: RobotKinematics, w: np.ndarray, mu: float, decay_frames: float):
+    """(F nv, F nv) sparse matrix M of the prior on the motion, q' M q' (q' the joint angles frame after
+    frame): mu |joint accelerations|^2 (per frame^2), plus, where a direction lies beyond its first or
+    last sighting (:func:`_beyond_sightings`), mu / decay_frames^2 |joint speeds|^2 (per frame).
+
+    Why the second term: with nothing seen, the acceleration prior alone carries a joint on at its last
+    speed for ever (a straight ramp costs nothing); with it, the speed decays with a time constant of
+    ``decay_frames`` frames (inf: no decay) and the joint comes to rest."""
     import scipy.sparse as sp
 
-    return sp.diags([np.ones(F - 2), -2 * np.ones(F - 2), np.ones(F - 2)], [0, 1, 2], shape=(F - 2, F))
+    F, nv = len(w), robot.nv
+    L = sp.diags([np.ones(F - 2), -2 * np.ones(F - 2), np.ones(F - 2)], [0, 1, 2], shape=(F - 2, F))
+    D1 = sp.kron(sp.diags([-np.ones(F - 1), np.ones(F - 1)], [0, 1], shape=(F - 1, F)), sp.eye(nv))
+    speed = sp.diags(_beyond_sightings(robot, w).reshape(-1) * (mu / decay_frames ** 2))
+    return (sp.kron(mu * (L.T @ L), sp.eye(nv)) + D1.T @ speed @ D1).tocsr()
+
+
+def _prior_cost(prior, q: np.ndarray) -> float:
+    qf = q.reshape(-1)
+    return float(qf @ (prior @ qf))
 
 
 def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
                free: np.ndarray, free_view: np.ndarray, max_iter: int, tol: float, delta: float | None,
-               mu: float):
-    """Levenberg-Marquardt of :func:`_sequence_lm` for one shared view, plus a smoothness prior
-    mu * sum |q[f] - 2 q[f+1] + q[f+2]|^2 (joint accelerations) that couples neighbouring frames.
+               prior):
+    """Levenberg-Marquardt of :func:`_sequence_lm` for one shared view, plus a quadratic prior on the
+    motion, q' prior q' with q' the (F nv,) joint angles frame after frame (:func:`_motion_prior`),
+    that couples neighbouring frames.
 
     The joint-angle block of the normal equations is then banded (two frames either side); it is
     factored as a banded Cholesky (scipy.linalg.cholesky_banded) and the view eliminated by a
@@ -550,19 +583,16 @@ def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.
     N = F * nv
     u = 3 * nv - 1  # upper bandwidth: frame f couples to f + 2
     tz = np.nan_to_num(target)
-    L = _second_differences(F)
-    LtL = (L.T @ L).tocsr()
     frozen = (~free).reshape(-1)
+    prior_band = np.zeros((u + 1, N))
+    for d in range(u + 1):  # upper diagonals of the prior, in the banded layout
+        prior_band[u - d, d:] = prior.diagonal(d)
 
     def band(Hqq, extra):
-        ab = np.zeros((u + 1, N))
+        ab = prior_band.copy()
         for a_ in range(nv):  # block diagonal: (f nv + a, f nv + b) for b >= a
             for b_ in range(a_, nv):
                 ab[u - (b_ - a_), np.arange(F) * nv + b_] += Hqq[:, a_, b_]
-        for k in range(3):  # prior: LtL diagonal k, same dof in frames f and f + k
-            d = LtL.diagonal(k) * mu
-            for a_ in range(nv):
-                ab[u - k * nv, np.arange(F - k) * nv + k * nv + a_] += d
         ab[u] += extra
         return ab
 
@@ -571,17 +601,17 @@ def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.
         pred, y = view.apply(pos)
         res = pred - tz
         data = float((w * _huber(np.linalg.norm(res, axis=-1), delta)[0]).sum())
-        return pos, jac, y, res, data + mu * float(((L @ q) ** 2).sum())
+        return pos, jac, y, res, data + _prior_cost(prior, q)
 
     pos, jac, y, res, cost = evaluate(q, view)
     lam, converged, it = 1e-4, False, 0
     for it in range(1, max_iter + 1):
         ww = w * _huber(np.linalg.norm(res, axis=-1), delta)[1]
         Hqq, Hqc, gq, Hcc, gc = _normal_equations(view, jac, y, res, ww, free, free_view)
-        gq = gq.reshape(-1) + mu * (LtL @ q).reshape(-1)
+        gq = gq.reshape(-1) + prior @ q.reshape(-1)
         gq[frozen] = 0.0
         Hx = Hqc.reshape(N, nc)
-        diag_q = np.einsum("fvv->fv", Hqq).reshape(-1) + mu * np.repeat(LtL.diagonal(), nv)
+        diag_q = np.einsum("fvv->fv", Hqq).reshape(-1) + prior.diagonal()
         for _ in range(12):
             ab = band(Hqq, lam * (diag_q + 1e-9 * diag_q.mean()) + frozen * 1e12)
             sol = cho_solve_banded((cholesky_banded(ab, check_finite=False), False), np.column_stack([gq, Hx]),
@@ -1346,13 +1376,14 @@ def _motion(robot: RobotKinematics, q: np.ndarray) -> float:
     return float((_wrapped(robot, np.diff(q, axis=0)) ** 2).sum())
 
 
-def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarray, w: np.ndarray, mu: float,
+def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarray, w: np.ndarray, prior,
                    sigma: float, max_iter: int, tol: float, wrong_side: Callable[[dict], bool],
                    reflected: Callable[[dict], dict],
                    rebranch: Callable[[dict, tuple], tuple[np.ndarray, _View]]) -> tuple[dict, bool, int]:
     """The fit of the most probable motion under the smoothness prior, among ``results`` (refined fits,
     preferred first): each distinct fit that the tracks alone nearly tie is smoothed (:func:`_smooth_lm`)
-    and scored by the smoothed objective, robust residuals plus mu |joint accelerations|^2, with one
+    and scored by the smoothed objective, robust residuals plus the motion prior (``prior``, the sparse
+    matrix of :func:`_motion_prior`), with one
     Huber threshold for all; a direction that no point seen in a frame moves is free there (``free_prior``:
     the prior interpolates it). When the lowest is seen from the wrong side (``wrong_side``), its mirror
     image (``reflected``: a start with ``q``, ``view``, ``free_prior``) is smoothed and scored too. Each
@@ -1369,16 +1400,15 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
     """
     best_sse = min(r["sse"] for r in results)
     delta = results[0]["delta"]
-    L = _second_differences(len(tracks))
     scored: list[tuple[float, dict]] = []
     n_iter = 0
 
     def smoothed(r, q, view):
         nonlocal n_iter
         out = _smooth_lm(robot, robot.continuous(q), tracks, w, view, r["free_prior"], np.ones(6, bool), max_iter,
-                         tol, delta, mu)
+                         tol, delta, prior)
         n_iter += out[5]
-        return float((w * _huber(out[2], delta)[0]).sum()) + mu * float(((L @ out[0]) ** 2).sum()), out
+        return float((w * _huber(out[2], delta)[0]).sum()) + _prior_cost(prior, out[0]), out
 
     def score(r, q, view):
         objective, out = smoothed(r, q, view)
@@ -1414,6 +1444,12 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
     lowest = min(sr[0] for sr in scored)
     tied = [r for sr, r in scored if sr - lowest <= 25.0 * sigma ** 2]
     return sorted(tied, key=wrong_side)[0], len(tied) > 1, n_iter
+
+
+def _positive(x: Any) -> bool:
+    """Whether x is a finite real number > 0 (not a bool)."""
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool) and bool(np.isfinite(x)) \
+        and x > 0
 
 
 def _inputs(rec_or_poses, urdf, chain, tracks, confidence):
@@ -1488,6 +1524,7 @@ def fit_joint_angles(
     view_from: str | None = "above",
     fps: float = 30.0,
     accel_std: float | None = 3.0,
+    speed_decay_s: float | None = None,
 ) -> JointFit:
     """Fit the robot's joint angles to a reconstruction (and its 2D tracks).
 
@@ -1524,6 +1561,10 @@ def fit_joint_angles(
         much as pixel noise of the size of the residuals. Robots move smoothly; the prior averages the
         noise over neighbouring frames (the wrist joints, seen through short links, gain most). None:
         every frame on its own.
+    speed_decay_s
+        Before the first and after the last frame in which a point it moves is seen, a joint's speed
+        decays with this time constant (s), so that the joint comes to rest; None (default): it
+        carries on at its last speed, as the acceleration prior alone has it. Used with ``accel_std``.
     view_from
         ``"above"`` (default: the camera looks down on the robot's base plane, or level), ``"below"`` or
         None. Under weak perspective a motion and its mirror image project alike; for a robot built
@@ -1539,9 +1580,11 @@ def fit_joint_angles(
     """
     if view_from not in ("above", "below", None):
         raise DescriptionError(f"view_from must be 'above', 'below' or None, not {view_from!r}")
-    if accel_std is not None and not (np.isfinite(accel_std) and accel_std > 0):
+    if accel_std is not None and not _positive(accel_std):
         raise DescriptionError(f"accel_std must be a positive number of rad/s^2 or None, not {accel_std!r}")
-    if not (np.isfinite(fps) and fps > 0):
+    if speed_decay_s is not None and not _positive(speed_decay_s):
+        raise DescriptionError(f"speed_decay_s must be a positive number of seconds or None, not {speed_decay_s!r}")
+    if not _positive(fps):
         raise DescriptionError(f"fps must be positive, not {fps!r}")
     if camera not in ("static", "per-frame"):
         raise DescriptionError(f"camera must be 'static' or 'per-frame', not {camera!r}")
@@ -1657,7 +1700,8 @@ def fit_joint_angles(
                 if not (better or tie and (smoother or nearer)):
                     break  # only a better fit of the tracks, or an equal fit by a smoother path or nearer rest
                 out = new
-            q_rest_branch = _nearest_rest_branch(robot, out[0], free)
+            # free where unseen too: a branch held there could not turn with the rest of its path
+            q_rest_branch = _nearest_rest_branch(robot, out[0], free_prior)
             if q_rest_branch is not out[0]:
                 out = _sequence_lm(robot, q_rest_branch, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol,
                                    delta)
@@ -1742,7 +1786,8 @@ def fit_joint_angles(
             # joint accelerations ~ N(0, accel_std^2) against pixel noise sigma: the prior's weight
             mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
             smoothed = True
-            r, mirror_tied, it = _most_probable(robot, results, tracks, w2, mu, max(sigma, px_floor), max_iter, tol,
+            prior = _motion_prior(robot, w2, mu, np.inf if speed_decay_s is None else speed_decay_s * float(fps))
+            r, mirror_tied, it = _most_probable(robot, results, tracks, w2, prior, max(sigma, px_floor), max_iter, tol,
                                                 seen_from_wrong_side, reflected_start, rebranch)
             n_iter += it
         (q, view, rn, pos_base, conv2, _), best, gauge = r["out"], r["c"], r["g2"]

@@ -129,7 +129,9 @@ def test_similarity_align_known_answer():
 
 
 @pytest.mark.parametrize("kwargs", [dict(camera="moving"), dict(transform="affine"), dict(max_iter=0),
-                                    dict(view_from="side"), dict(accel_std=-1.0)])
+                                    dict(view_from="side"), dict(accel_std=-1.0), dict(speed_decay_s=0.0),
+                                    dict(speed_decay_s=float("nan")), dict(speed_decay_s="fast"),
+                                    dict(accel_std="3"), dict(fps=None)])
 def test_bad_options(arm, kwargs):
     chain, _ = arm
     with pytest.raises(ChainspaceError):
@@ -300,3 +302,76 @@ def test_a_wrist_seen_again_after_a_long_gap_comes_back_on_the_branch_that_moves
                                            confidence=np.where(hidden, 0.0, trial.confidence)))
     worst_deg, error_m = trial_errors(fit, trial)
     assert worst_deg < 15.0 and error_m < 0.03
+
+
+def test_the_prior_brings_a_joint_to_rest_past_its_last_sighting(arm):
+    # The wrist and tool points are hidden after frame 29: nothing but the prior places a5 and a6 there.
+    # Held at a steady turn where seen, the prior's minimum carries them on: with the speed decay their
+    # steps shrink by exp(-1 / (0.5 s x 30 fps)) a frame (away from the last frame, whose free end
+    # bends the curve); without it, at the last seen speed.
+    from chainspace.fit import _motion_prior
+
+    chain, robot = arm
+    F, nv = 120, robot.nv
+    w = np.ones((F, chain.n_joints))
+    w[30:, [chain.joint_index(n) for n in ("link_5", "link_6", "spindle", "tool_tip")]] = 0.0
+    a5 = list(robot.joint_names).index("joint_a5")
+    free = np.zeros((F, nv), bool)
+    free[30:, a5] = True
+    seen_q = np.outer(np.arange(F), np.full(nv, 0.01))  # every joint turning at 0.01 rad a frame
+    for decay, ratio in ((15.0, np.exp(-1 / 15)), (np.inf, 1.0)):
+        M = _motion_prior(robot, w, 1.0, decay)
+        x, y = free.reshape(-1), ~free.reshape(-1)
+        q = seen_q.reshape(-1).copy()  # the prior's minimum over the free entries, the others held
+        q[x] = np.linalg.solve(M[x][:, x].toarray(), -M[x][:, y] @ q[y])
+        steps = np.diff(q.reshape(F, nv)[29:, a5])
+        assert np.allclose(steps[1:40] / steps[:39], ratio, atol=2e-3)
+        if decay == np.inf:
+            assert np.allclose(steps, 0.01)
+
+
+def test_with_a_speed_decay_a_wrist_hidden_in_the_last_second_comes_to_rest(arm):
+    # The fit's own path past the last sighting: the wrist's speed decays instead of carrying on.
+    chain = from_urdf(ROBOTS / "milling_arm.urdf", extra_frames={"tool_marker": ("spindle", [0.0, 0.08, 0.0])})
+    trial = synthesize(chain, n_frames=60, noise_px=1.0, seed=3)
+    tracks = trial.tracks.copy()
+    tracks[35:, [chain.joint_index(n) for n in ("link_5", "link_6", "spindle", "tool_tip", "tool_marker")]] = np.nan
+    fit = fit_joint_angles(trial.positions, chain=chain, tracks=tracks, speed_decay_s=0.5)
+    a6 = fit.joint_names.index("joint_a6")
+    q = np.unwrap(fit.q[:, a6])
+    at_sighting, last = q[34] - q[33], q[59] - q[58]
+    assert abs(at_sighting) > np.radians(0.5)  # the case: a6 turning when last seen (measured 1.2 deg a frame)
+    assert abs(last) < 0.5 * abs(at_sighting)  # measured 0.35 x; at constant speed it would be 1 x
+
+
+def test_hidden_ends_table_counts_flipped_wrists_and_leaves_them_out_of_the_means():
+    from chainspace.benchmark_hidden_ends import format_hidden_ends
+
+    rows = [dict(trial=0, end="last", decay=None, worst_deg=176.0, error_mm=23.7),
+            dict(trial=0, end="first", decay=None, worst_deg=7.0, error_mm=21.0),
+            dict(trial=1, end="last", decay=None, worst_deg=5.0, error_mm=25.0),
+            dict(trial=0, end="last", decay=0.5, worst_deg=4.0, error_mm=20.0)]
+    lines = format_hidden_ends(rows).splitlines()
+    assert lines[2] == "| none | 3 | 1 | 6.00 | 7.00 | 23.0 | 25.0 |"
+    assert lines[3] == "| 0.5 s | 1 | 0 | 4.00 | 4.00 | 20.0 | 20.0 |"
+
+
+def test_a_wrist_hidden_in_the_last_second_is_put_on_the_branch_nearest_rest():
+    # The hidden-ends benchmark's first trial, wrist and tool hidden in frames 60-89. The wrist turned
+    # half a turn with a5 mirrored puts every point in the same place, in every frame; of the two the
+    # branch nearer the rest pose is reported. The choice used to hold the wrist's directions where they
+    # were unseen, so it could not turn the whole path and kept the far branch (176 degrees worst joint).
+    from chainspace.benchmark_robots import trial_errors
+    from chainspace.benchmark_robustness import TOOL_MARKER
+
+    chain = from_urdf(ROBOTS / "milling_arm.urdf", extra_frames=TOOL_MARKER)
+    trial = synthesize(chain, n_frames=90, noise_px=2.0, seed=100)
+    tracks = trial.tracks.copy()
+    tracks[60:, [chain.joint_index(n) for n in ("link_5", "link_6", "spindle", "tool_tip", "tool_marker")]] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_joint_angles(trial.positions, chain=chain, tracks=tracks)
+    worst_deg, _ = trial_errors(fit, trial)
+    a4 = fit.joint_names.index("joint_a4")
+    assert np.degrees(np.abs(_wrapped(fit.q[:60, a4] - trial.q[:60, a4]))).max() < 5.0
+    assert worst_deg < 15.0

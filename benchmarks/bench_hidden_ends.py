@@ -1,0 +1,26 @@
+"""Joints hidden at the start or the end of a sequence: the fit's speed decay against none.
+
+    python benchmarks/bench_hidden_ends.py            # 8 trials x (first, last second hidden) x 2 settings
+    python benchmarks/bench_hidden_ends.py --quick    # 2 trials
+
+Prints one markdown table (see chainspace.benchmark_hidden_ends).
+"""
+
+import argparse
+import sys
+
+from chainspace.benchmark_hidden_ends import format_hidden_ends, run_hidden_ends
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--quick", action="store_true", help="2 trials")
+    p.add_argument("--trials", type=int, default=None, help="trials (default 8)")
+    a = p.parse_args(argv)
+    rows = run_hidden_ends(a.quick, lambda m: print(m, file=sys.stderr, flush=True), n_trials=a.trials)
+    print(format_hidden_ends(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,78 @@
+"""How the robot fit carries joints hidden at the start or the end of a sequence.
+
+Before a joint's first sighting and after its last one nothing but the motion prior places it. The
+acceleration prior alone (the default) carries it on at its last speed for ever; ``fit_joint_angles``
+can also let the speed decay there (``speed_decay_s``). This benchmark measures that choice on trials the
+robustness benchmark does not use: the milling arm (with its spindle marker), smooth random joint motion, 90
+frames at 30 fps, 2 px noise, the tracked 3D positions and the tracks given to the fit, and the wrist
+and tool points hidden for the first or the last second.
+
+Reported per setting of ``speed_decay_s``: the worst per-joint RMS error (degrees) and the 3D error of
+the fitted robot (mm), as :func:`chainspace.benchmark_robots.trial_errors` measures them. A run whose
+worst joint is off by more than 90 degrees has its wrist on the flipped branch (a4 + 180, a5 mirrored,
+a6 + 180: every tracked point in the same place), which the rest-pose rule settles, not the prior; it
+is counted and left out of the means.
+
+Command: ``python benchmarks/bench_hidden_ends.py`` (``--quick``: 2 trials) or
+``chainspace bench --suite hidden-ends``.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = ["DECAYS", "run_hidden_ends", "format_hidden_ends"]
+
+DECAYS: tuple[float | None, ...] = (None, 0.5)  # speed_decay_s; None: no decay
+WRIST = ("link_5", "link_6", "spindle", "tool_tip", "tool_marker")
+FLIPPED_DEG = 90.0
+
+
+def run_hidden_ends(quick: bool = False, progress: Callable[[str], None] | None = None, *,
+                    n_trials: int | None = None, decays: Sequence[float | None] = DECAYS, n_frames: int = 90,
+                    hidden_frames: int = 30, noise_px: float = 2.0) -> list[dict[str, Any]]:
+    """One row per trial, hidden end and decay: trial, end ("first"/"last"), decay, worst_deg, error_mm.
+    ``quick``: 2 trials, else 8 (``n_trials``)."""
+    from .benchmark_robots import trial_errors
+    from .benchmark_robustness import TOOL_MARKER
+    from .descriptions import shipped_path
+    from .fit import fit_joint_angles
+    from .robot_synthetic import synthesize
+    from .urdf import from_urdf
+
+    chain = from_urdf(shipped_path("milling_arm"), extra_frames=TOOL_MARKER)
+    wrist = [chain.joint_index(n) for n in WRIST]
+    rows = []
+    for k in range(n_trials or (2 if quick else 8)):
+        trial = synthesize(chain, n_frames=n_frames, noise_px=noise_px, seed=100 + k)
+        for end, frames in (("last", slice(n_frames - hidden_frames, None)), ("first", slice(0, hidden_frames))):
+            tracks = trial.tracks.copy()
+            tracks[frames, wrist] = np.nan
+            for decay in decays:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    fit = fit_joint_angles(trial.positions, chain=chain, tracks=tracks, speed_decay_s=decay)
+                worst, error_m = trial_errors(fit, trial)
+                rows.append(dict(trial=k, end=end, decay=decay, worst_deg=worst, error_mm=1000 * error_m))
+                if progress:
+                    progress(f"trial {k}, {end} second hidden, speed_decay_s={decay}: worst joint {worst:.2f} deg, "
+                             f"{1000 * error_m:.1f} mm")
+    return rows
+
+
+def format_hidden_ends(rows: Sequence[dict]) -> str:
+    """Markdown: one line per decay setting."""
+    lines = ["| speed_decay_s | runs | wrist flipped | worst joint RMS deg (mean) | (max) | 3D error mm (mean) | (max) |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
+    for decay in dict.fromkeys(r["decay"] for r in rows):
+        sub = [r for r in rows if r["decay"] == decay]
+        kept = [r for r in sub if r["worst_deg"] <= FLIPPED_DEG]
+        worst = np.array([r["worst_deg"] for r in kept])
+        err = np.array([r["error_mm"] for r in kept])
+        lines.append(f"| {'none' if decay is None else f'{decay:g} s'} | {len(sub)} | {len(sub) - len(kept)} | "
+                     f"{worst.mean():.2f} | {worst.max():.2f} | {err.mean():.1f} | {err.max():.1f} |")
+    return "\n".join(lines)
