@@ -2,10 +2,10 @@
 
 Before a joint's first sighting and after its last one nothing but the motion prior places it. The
 acceleration prior alone (the default) carries it on at its last speed for ever; ``fit_joint_angles``
-can also let the speed decay there (``speed_decay_s``). This benchmark measures that choice on trials the
-robustness benchmark does not use: the milling arm (with its spindle marker), smooth random joint motion, 90
-frames at 30 fps, 2 px noise, the tracked 3D positions and the tracks given to the fit, and the wrist
-and tool points hidden for the first or the last second.
+can also let the speed decay there (``speed_decay_s``). This benchmark measures that choice on trials
+the robustness benchmark does not use: the milling arm (with its spindle marker), smooth random joint
+motion, 90 frames at 30 fps, 2 px noise, the tracked 3D positions and the tracks given to the fit, and
+the wrist and tool points hidden for the first or the last second.
 
 Reported per setting of ``speed_decay_s``: the worst per-joint RMS error (degrees) and the 3D error of
 the fitted robot (mm), as :func:`chainspace.benchmark_robots.trial_errors` measures them. A run whose
@@ -66,8 +66,8 @@ def run_hidden_ends(quick: bool = False, progress: Callable[[str], None] | None 
 
 def format_hidden_ends(rows: Sequence[dict]) -> str:
     """Markdown: one line per decay setting."""
-    lines = ["| speed_decay_s | runs | wrist flipped | worst joint RMS deg (mean) | (max) | 3D error mm (mean) | (max) |",
-             "|---|---:|---:|---:|---:|---:|---:|"]
+    lines = ["| speed_decay_s | runs | wrist flipped | worst joint RMS deg (mean) | (max) "
+             "| 3D error mm (mean) | (max) |", "|---|---:|---:|---:|---:|---:|---:|"]
     for decay in dict.fromkeys(r["decay"] for r in rows):
         sub = [r for r in rows if r["decay"] == decay]
         kept = [r for r in sub if r["worst_deg"] <= FLIPPED_DEG]

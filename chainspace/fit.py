@@ -1786,9 +1786,10 @@ def fit_joint_angles(
             # joint accelerations ~ N(0, accel_std^2) against pixel noise sigma: the prior's weight
             mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
             smoothed = True
-            prior = _motion_prior(robot, w2, mu, np.inf if speed_decay_s is None else speed_decay_s * float(fps))
-            r, mirror_tied, it = _most_probable(robot, results, tracks, w2, prior, max(sigma, px_floor), max_iter, tol,
-                                                seen_from_wrong_side, reflected_start, rebranch)
+            decay_frames = np.inf if speed_decay_s is None else speed_decay_s * float(fps)
+            r, mirror_tied, it = _most_probable(robot, results, tracks, w2, _motion_prior(robot, w2, mu, decay_frames),
+                                                max(sigma, px_floor), max_iter, tol, seen_from_wrong_side,
+                                                reflected_start, rebranch)
             n_iter += it
         (q, view, rn, pos_base, conv2, _), best, gauge = r["out"], r["c"], r["g2"]
         converged = conv2  # the 3D stage only started this one
