@@ -532,31 +532,32 @@ def _normal_equations(view: _View, jac: np.ndarray, y: np.ndarray, res: np.ndarr
     return Hqq, Hqc, gq, Hcc, gc
 
 
-def _beyond_sightings(robot: RobotKinematics, w: np.ndarray) -> np.ndarray:
+def _beyond_sightings(unseen: np.ndarray) -> np.ndarray:
     """(F-1, nv) steps between frames f and f+1 that lie before the first or after the last frame in
-    which a point moved by each direction is seen (w (F, J) > 0); False for directions never seen."""
-    seen = ~_unseen(robot, w)
-    F = len(w)
+    which each direction is seen (``unseen`` (F, nv): :func:`_unseen`); False for directions never seen."""
+    seen = ~unseen
+    F = len(seen)
     first = np.argmax(seen, axis=0)
     last = F - 1 - np.argmax(seen[::-1], axis=0)
     f = np.arange(F - 1)[:, None]
     return ((f >= last) | (f + 1 <= first)) & seen.any(0)
 
 
-def _motion_prior(robot: RobotKinematics, w: np.ndarray, mu: float, decay_frames: float):
+def _motion_prior(unseen: np.ndarray, mu: float, decay_frames: float):
     """(F nv, F nv) sparse matrix M of the prior on the motion, q' M q' (q' the joint angles frame after
     frame): mu |joint accelerations|^2 (per frame^2), plus, where a direction lies beyond its first or
-    last sighting (:func:`_beyond_sightings`), mu / decay_frames^2 |joint speeds|^2 (per frame).
+    last sighting (``unseen`` (F, nv), :func:`_beyond_sightings`), mu / decay_frames^2 |joint speeds|^2
+    (per frame).
 
     Why the second term: with nothing seen, the acceleration prior alone carries a joint on at its last
     speed for ever (a straight ramp costs nothing); with it, the speed decays with a time constant of
     ``decay_frames`` frames (inf: no decay) and the joint comes to rest."""
     import scipy.sparse as sp
 
-    F, nv = len(w), robot.nv
+    F, nv = unseen.shape
     L = sp.diags([np.ones(F - 2), -2 * np.ones(F - 2), np.ones(F - 2)], [0, 1, 2], shape=(F - 2, F))
     D1 = sp.kron(sp.diags([-np.ones(F - 1), np.ones(F - 1)], [0, 1], shape=(F - 1, F)), sp.eye(nv))
-    speed = sp.diags(_beyond_sightings(robot, w).reshape(-1) * (mu / decay_frames ** 2))
+    speed = sp.diags(_beyond_sightings(unseen).reshape(-1) * (mu / decay_frames ** 2))
     return (sp.kron(mu * (L.T @ L), sp.eye(nv)) + D1.T @ speed @ D1).tocsr()
 
 
@@ -1371,11 +1372,6 @@ def _looks_down(view: _View) -> float:
     return -float(np.mean(view.R[:, 2, 2]))
 
 
-def _motion(robot: RobotKinematics, q: np.ndarray) -> float:
-    """Sum of squared joint steps between frames (rad^2)."""
-    return float((_wrapped(robot, np.diff(q, axis=0)) ** 2).sum())
-
-
 def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarray, w: np.ndarray, prior,
                    sigma: float, max_iter: int, tol: float, wrong_side: Callable[[dict], bool],
                    reflected: Callable[[dict], dict],
@@ -1383,10 +1379,10 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
     """The fit of the most probable motion under the smoothness prior, among ``results`` (refined fits,
     preferred first): each distinct fit that the tracks alone nearly tie is smoothed (:func:`_smooth_lm`)
     and scored by the smoothed objective, robust residuals plus the motion prior (``prior``, the sparse
-    matrix of :func:`_motion_prior`), with one
-    Huber threshold for all; a direction that no point seen in a frame moves is free there (``free_prior``:
-    the prior interpolates it). When the lowest is seen from the wrong side (``wrong_side``), its mirror
-    image (``reflected``: a start with ``q``, ``view``, ``free_prior``) is smoothed and scored too. Each
+    matrix of :func:`_motion_prior`), with one Huber threshold for all; a direction that no point seen
+    in a frame moves is free there (``free_prior``: the prior interpolates it). When the lowest is seen
+    from the wrong side (``wrong_side``), its mirror image (``reflected``: a start with ``q``, ``view``,
+    ``free_prior``) is smoothed and scored too. Each
     smoothed fit then gets the branch of every frame chosen again (``rebranch``, a Viterbi pass) and is
     smoothed again while that lowers its score. Of the fits within 25 noise variances of the lowest
     score, the first seen from the right side wins, else the first in ``results``; it is returned with
@@ -1429,10 +1425,10 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
     best, r = min(scored, key=lambda sr: sr[0])
     # a joint seen again after a long gap: the bridges to its other branches that score alike (the
     # acceleration prior charges nothing for a straight ramp), the one that moves least wins
-    least = (_motion(robot, r["q"]), best, r)
+    least = (_roughness(robot, r["q"]), best, r)
     for q_b in _across_long_gaps(robot, r["q"], tracks, w, r["out"][1], r["free"], sigma, _LONG_GAP):
         objective, out = smoothed(r, q_b, r["out"][1])
-        moved = _motion(robot, out[0])
+        moved = _roughness(robot, out[0])
         if objective <= best + 25.0 * sigma ** 2 and moved < least[0]:
             least = (moved, objective, dict(r, out=out, q=out[0], down=_looks_down(out[1])))
     if least[2] is not r:
@@ -1446,10 +1442,13 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
     return sorted(tied, key=wrong_side)[0], len(tied) > 1, n_iter
 
 
+def _real(x: Any) -> bool:
+    """Whether x is a finite real number (not a bool, a string or an array)."""
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool) and bool(np.isfinite(x))
+
+
 def _positive(x: Any) -> bool:
-    """Whether x is a finite real number > 0 (not a bool)."""
-    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool) and bool(np.isfinite(x)) \
-        and x > 0
+    return _real(x) and x > 0
 
 
 def _inputs(rec_or_poses, urdf, chain, tracks, confidence):
@@ -1592,8 +1591,7 @@ def fit_joint_angles(
         raise DescriptionError(f"transform must be 'similarity', 'rigid' or 'none', not {transform!r}")
     if not (isinstance(max_iter, (int, np.integer)) and max_iter > 0):
         raise DescriptionError(f"max_iter must be a positive integer, not {max_iter!r}")
-    if not (isinstance(tol, (int, float, np.integer, np.floating)) and not isinstance(tol, bool)
-            and np.isfinite(tol) and tol >= 0):
+    if not (_real(tol) and tol >= 0):
         raise DescriptionError(f"tol must be a finite number >= 0, not {tol!r}")
     if loss_scale_px is not None and not (isinstance(loss_scale_px, (int, float, np.integer, np.floating))
                                           and np.isfinite(loss_scale_px) and loss_scale_px >= 0):
@@ -1787,7 +1785,7 @@ def fit_joint_angles(
             mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
             smoothed = True
             decay_frames = np.inf if speed_decay_s is None else speed_decay_s * float(fps)
-            r, mirror_tied, it = _most_probable(robot, results, tracks, w2, _motion_prior(robot, w2, mu, decay_frames),
+            r, mirror_tied, it = _most_probable(robot, results, tracks, w2, _motion_prior(unseen2, mu, decay_frames),
                                                 max(sigma, px_floor), max_iter, tol, seen_from_wrong_side,
                                                 reflected_start, rebranch)
             n_iter += it

@@ -309,7 +309,7 @@ def test_the_prior_brings_a_joint_to_rest_past_its_last_sighting(arm):
     # Held at a steady turn where seen, the prior's minimum carries them on: with the speed decay their
     # steps shrink by exp(-1 / (0.5 s x 30 fps)) a frame (away from the last frame, whose free end
     # bends the curve); without it, at the last seen speed.
-    from chainspace.fit import _motion_prior
+    from chainspace.fit import _motion_prior, _unseen
 
     chain, robot = arm
     F, nv = 120, robot.nv
@@ -320,7 +320,7 @@ def test_the_prior_brings_a_joint_to_rest_past_its_last_sighting(arm):
     free[30:, a5] = True
     seen_q = np.outer(np.arange(F), np.full(nv, 0.01))  # every joint turning at 0.01 rad a frame
     for decay, ratio in ((15.0, np.exp(-1 / 15)), (np.inf, 1.0)):
-        M = _motion_prior(robot, w, 1.0, decay)
+        M = _motion_prior(_unseen(robot, w), 1.0, decay)
         x, y = free.reshape(-1), ~free.reshape(-1)
         q = seen_q.reshape(-1).copy()  # the prior's minimum over the free entries, the others held
         q[x] = np.linalg.solve(M[x][:, x].toarray(), -M[x][:, y] @ q[y])
