@@ -16,6 +16,7 @@ __all__ = [
     "OutputExistsError",
     "ConvergenceWarning",
     "located",
+    "is_real",
 ]
 
 
@@ -41,6 +42,13 @@ class OutputExistsError(ChainspaceError, FileExistsError):
 
 class ConvergenceWarning(UserWarning):
     """A solver stopped before it converged; the result is still returned, flagged."""
+
+
+def is_real(x: object) -> bool:
+    """Whether an option's value x is a finite real number (not a bool, a string or an array)."""
+    import numpy as np
+
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool) and bool(np.isfinite(x))
 
 
 def located(message: str, source: object = None, line: int | None = None) -> str:

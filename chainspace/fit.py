@@ -110,7 +110,7 @@ from typing import Any
 import numpy as np
 
 from .chain import KinematicChain
-from .errors import ConvergenceWarning, DescriptionError, DescriptionNotFoundError, TrackError
+from .errors import ConvergenceWarning, DescriptionError, DescriptionNotFoundError, TrackError, is_real
 
 __all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"]
 
@@ -167,6 +167,14 @@ class RobotKinematics:
         self.q_rest = self.clip(np.asarray(q_rest, float) if q_rest is not None and np.size(q_rest) == self.nq
                                 else np.array(pin.neutral(m)))
         self.joint_names = self._q_names()
+        # Each point as its joint's placement applies it: the parent joint, the point in its frame
+        # (homogeneous), and the velocity directions that move it (J, nv): its supporting joints.
+        self._parent_joint = np.array([m.frames[fid].parentJoint for fid in self.frame_ids], int)
+        self._in_parent = np.array([np.append(m.frames[fid].placement.translation, 1.0) for fid in self.frame_ids])
+        self._carried_by = np.zeros((len(self.frame_ids), self.nv), bool)
+        for k, parent in enumerate(self._parent_joint):
+            for j in m.supports[int(parent)][1:]:
+                self._carried_by[k, m.joints[j].idx_v:m.joints[j].idx_v + m.joints[j].nv] = True
         # Where solvers start from "the rest pose": the rest pose with every revolute joint turned a
         # little, because rest poses are often singular (a stretched wrist, an upright arm), where the
         # gradient cannot tell a joint's sign.
@@ -273,28 +281,33 @@ class RobotKinematics:
         """World positions (F, J, 3) of the chain's points for configurations q (F, nq), metres."""
         pin, m, d = self.pin, self.model, self.data
         q = np.atleast_2d(q)
-        out = np.empty((len(q), len(self.frame_ids), 3))
+        placements = np.empty((len(q), m.njoints, 4, 4))
         for f, qf in enumerate(q):
             pin.forwardKinematics(m, d, qf)
-            for j, fid in enumerate(self.frame_ids):
-                out[f, j] = pin.updateFramePlacement(m, d, int(fid)).translation
-        return out
+            placements[f] = [M.homogeneous for M in d.oMi.tolist()]
+        return self._points(placements)
+
+    def _points(self, placements: np.ndarray) -> np.ndarray:
+        """The chain's points (F, J, 3) from the joints' world placements (F, njoints, 4, 4): one product
+        for all points and frames, where reading each point's placement from Pinocchio takes a call."""
+        return (placements[:, self._parent_joint] @ self._in_parent[..., None])[..., :3, 0]
 
     def jacobians(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Positions (F, J, 3) and translational frame Jacobians (F, J, 3, nv) in world axes."""
         pin, m, d = self.pin, self.model, self.data
         q = np.atleast_2d(q)
-        F, J = len(q), len(self.frame_ids)
-        pos = np.empty((F, J, 3))
-        jac = np.empty((F, J, 3, self.nv))
-        lwa = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+        placements = np.empty((len(q), m.njoints, 4, 4))
+        spatial = np.empty((len(q), 6, self.nv))
         for f, qf in enumerate(q):
             pin.computeJointJacobians(m, d, qf)
-            pin.updateFramePlacements(m, d)
-            for j, fid in enumerate(self.frame_ids):
-                pos[f, j] = d.oMf[fid].translation
-                jac[f, j] = pin.getFrameJacobian(m, d, int(fid), lwa)[:3]
-        return pos, jac
+            spatial[f] = d.J
+            placements[f] = [M.homogeneous for M in d.oMi.tolist()]
+        # What pin.getFrameJacobian(LOCAL_WORLD_ALIGNED) returns: the world Jacobian's twist moved to each
+        # point, on the joints that carry it; for all points and frames at once. One Pinocchio call per
+        # point and frame cost more than the kinematics themselves.
+        pos = self._points(placements)
+        lin, ang = spatial[:, None, :3], spatial[:, None, 3:]
+        return pos, (lin + np.cross(ang, pos[..., None], axis=2)) * self._carried_by[:, None]
 
     def reach(self) -> float:
         """Largest distance of a chain point from the root over the rest pose and the limits' middle, m."""
@@ -519,16 +532,19 @@ def _normal_equations(view: _View, jac: np.ndarray, y: np.ndarray, res: np.ndarr
     """
     F, J, D = res.shape
     sc = view.S[view.cam_of][:, None, None, None]
-    Jq = np.einsum("fdc,fjcv->fjdv", view.matrices(), jac) * free[:, None, None, :]
-    Jc = np.concatenate([-sc * _skew(y)[..., :D, :], y[..., :D, None],
-                         np.broadcast_to(np.eye(D), (F, J, D, D))], -1) * free_view
-    Hqq = np.einsum("fjdv,fj,fjdu->fvu", Jq, ww, Jq)
-    Hqc = np.einsum("fjdv,fj,fjdc->fvc", Jq, ww, Jc)
-    gq = np.einsum("fjdv,fj,fjd->fv", Jq, ww, res)
+    Jq = (view.matrices()[:, None] @ jac * free[:, None, None, :]).reshape(F, J * D, -1)
+    Jc = (np.concatenate([-sc * _skew(y)[..., :D, :], y[..., :D, None],
+                          np.broadcast_to(np.eye(D), (F, J, D, D))], -1) * free_view).reshape(F, J * D, -1)
+    # batched products over the stacked (point, axis) rows: einsum's three-operand loops were the
+    # solver's main cost after the kinematics
+    JqW = (Jq * np.repeat(ww, D, axis=1)[..., None]).transpose(0, 2, 1)
+    JcW = (Jc * np.repeat(ww, D, axis=1)[..., None]).transpose(0, 2, 1)
+    r = res.reshape(F, J * D, 1)
+    Hqq, Hqc, gq = JqW @ Jq, JqW @ Jc, (JqW @ r)[..., 0]
     C, nc = len(view.S), 4 + D
     Hcc, gc = np.zeros((C, nc, nc)), np.zeros((C, nc))
-    np.add.at(Hcc, view.cam_of, np.einsum("fjdc,fj,fjde->fce", Jc, ww, Jc))
-    np.add.at(gc, view.cam_of, np.einsum("fjdc,fj,fjd->fc", Jc, ww, res))
+    np.add.at(Hcc, view.cam_of, JcW @ Jc)
+    np.add.at(gc, view.cam_of, (JcW @ r)[..., 0])
     return Hqq, Hqc, gq, Hcc, gc
 
 
@@ -1442,13 +1458,8 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
     return sorted(tied, key=wrong_side)[0], len(tied) > 1, n_iter
 
 
-def _real(x: Any) -> bool:
-    """Whether x is a finite real number (not a bool, a string or an array)."""
-    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool) and bool(np.isfinite(x))
-
-
 def _positive(x: Any) -> bool:
-    return _real(x) and x > 0
+    return is_real(x) and x > 0
 
 
 def _inputs(rec_or_poses, urdf, chain, tracks, confidence):
@@ -1591,10 +1602,9 @@ def fit_joint_angles(
         raise DescriptionError(f"transform must be 'similarity', 'rigid' or 'none', not {transform!r}")
     if not (isinstance(max_iter, (int, np.integer)) and max_iter > 0):
         raise DescriptionError(f"max_iter must be a positive integer, not {max_iter!r}")
-    if not (_real(tol) and tol >= 0):
+    if not (is_real(tol) and tol >= 0):
         raise DescriptionError(f"tol must be a finite number >= 0, not {tol!r}")
-    if loss_scale_px is not None and not (isinstance(loss_scale_px, (int, float, np.integer, np.floating))
-                                          and np.isfinite(loss_scale_px) and loss_scale_px >= 0):
+    if loss_scale_px is not None and not (is_real(loss_scale_px) and loss_scale_px >= 0):
         raise DescriptionError(f"loss_scale_px must be a finite number of pixels >= 0 or None, not {loss_scale_px!r}")
     poses, chain, urdf, tracks, confidence = _inputs(rec_or_poses, urdf, chain, tracks, confidence)
     timings: dict[str, float] = {}

@@ -29,7 +29,7 @@ import numpy as np
 
 from .camera import fit_cameras, smooth_scales
 from .chain import KinematicChain
-from .errors import ConvergenceWarning, TrackError
+from .errors import ConvergenceWarning, TrackError, is_real
 from .kcs import (bone_observations, fit_translations, kcs_factorize, reprojection_rms,
                   reprojection_with_translations)
 from .metrics import error_3d
@@ -189,8 +189,7 @@ def _check_options(chain, max_iter, tol, n_basis, refine_options):
         return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
 
     def is_pos(v):
-        return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) \
-            and np.isfinite(v) and v > 0
+        return is_real(v) and v > 0
 
     if max_iter is not None and not (is_int(max_iter) and max_iter >= 1):
         raise TrackError(f"max_iter must be a whole number >= 1 (or None for the default), not {max_iter!r}")
@@ -207,7 +206,7 @@ def _check_options(chain, max_iter, tol, n_basis, refine_options):
             if k not in _REFINE_OPTIONS:
                 raise TrackError(f"refine_options: unknown option {k!r}; known: {', '.join(_REFINE_OPTIONS)}")
             zero_ok = k in ("lam_len", "lam_smooth")
-            if not (is_pos(v) or (zero_ok and is_pos(v + 1.0) and v == 0)):
+            if not (is_pos(v) or (zero_ok and is_real(v) and v == 0)):
                 raise TrackError(f"refine_options: {k} must be a finite number {'>=' if zero_ok else '>'} 0, "
                                  f"not {v!r}")
 

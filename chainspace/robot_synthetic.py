@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from .chain import KinematicChain
-from .errors import DescriptionError, TrackError
+from .errors import DescriptionError, TrackError, is_real
 from .fit import RobotKinematics
 
 __all__ = ["RobotTrial", "synthesize", "random_trajectory", "milling_trajectory"]
@@ -277,8 +277,7 @@ def synthesize(
     """
     def number(name: str, value: Any, ok, need: str) -> float:
         # a real number (not a bool, string or array), finite, and within its range
-        if (isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating))
-                or not np.isfinite(value) or not ok(float(value))):
+        if not (is_real(value) and ok(float(value))):
             raise TrackError(f"{name} must be {need}, not {value!r}")
         return float(value)
 

@@ -533,9 +533,11 @@ def test_reconstruct_names_mismatch_is_one_reorder_call(human, walk):
         {"tol": float("nan")},
         {"n_basis": 0},
         {"refine_options": {"foo": 1}},
+        {"refine_options": {"lam_len": "0"}},
+        {"refine_options": {"lam_smooth": -1.0}},
     ],
     ids=["max_iter_str", "max_iter_negative", "max_iter_zero", "tol_str", "tol_negative", "tol_nan",
-         "n_basis_zero", "refine_options_unknown"],
+         "n_basis_zero", "refine_options_unknown", "lam_len_str", "lam_smooth_negative"],
 )
 def test_reconstruct_bad_option(human, walk, option):
     err = raises_located(_reconstruct, walk[1], human, match=next(iter(option)), **option)

@@ -131,7 +131,8 @@ def test_similarity_align_known_answer():
 @pytest.mark.parametrize("kwargs", [dict(camera="moving"), dict(transform="affine"), dict(max_iter=0),
                                     dict(view_from="side"), dict(accel_std=-1.0), dict(speed_decay_s=0.0),
                                     dict(speed_decay_s=float("nan")), dict(speed_decay_s="fast"),
-                                    dict(accel_std="3"), dict(fps=None)])
+                                    dict(accel_std="3"), dict(fps=None), dict(loss_scale_px=True),
+                                    dict(loss_scale_px=-1.0)])
 def test_bad_options(arm, kwargs):
     chain, _ = arm
     with pytest.raises(ChainspaceError):
@@ -375,3 +376,36 @@ def test_a_wrist_hidden_in_the_last_second_is_put_on_the_branch_nearest_rest():
     a4 = fit.joint_names.index("joint_a4")
     assert np.degrees(np.abs(_wrapped(fit.q[:60, a4] - trial.q[:60, a4]))).max() < 5.0
     assert worst_deg < 15.0
+
+
+@pytest.mark.parametrize("name", ["milling_arm", "panda", "kinova", "baxter", "solo12"])
+def test_point_jacobians_are_pinocchios_frame_jacobians(name):
+    """positions() and jacobians() compute all points from the joints' placements and Jacobian at once:
+    check them against pin.getFrameJacobian (LOCAL_WORLD_ALIGNED) and the frame placements point by
+    point, on branched trees, continuous joints and an extra frame."""
+    import pinocchio as pin
+
+    from chainspace.benchmark_robustness import TOOL_MARKER
+    from chainspace.descriptions import example_robot_urdf
+
+    if name == "milling_arm":
+        urdf = ROBOTS / "milling_arm.urdf"
+        chain = from_urdf(urdf, extra_frames=TOOL_MARKER)
+    else:
+        try:
+            urdf = example_robot_urdf(name)
+        except ChainspaceError as exc:
+            pytest.skip(str(exc))
+        chain = from_urdf(urdf)
+    robot = RobotKinematics(urdf, chain)
+    qs = np.stack([pin.randomConfiguration(robot.model, -np.ones(robot.nq), np.ones(robot.nq)) for _ in range(3)])
+    pos, jac = robot.jacobians(qs)
+    np.testing.assert_array_equal(robot.positions(qs), pos)
+    m, d = robot.model, robot.model.createData()
+    for f, q in enumerate(qs):
+        pin.computeJointJacobians(m, d, q)
+        pin.updateFramePlacements(m, d)
+        for j, fid in enumerate(robot.frame_ids):
+            np.testing.assert_allclose(pos[f, j], d.oMf[fid].translation, atol=1e-12)
+            want = pin.getFrameJacobian(m, d, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)[:3]
+            np.testing.assert_allclose(jac[f, j], want, atol=1e-12, err_msg=f"{name} point {chain.joints[j]}")
