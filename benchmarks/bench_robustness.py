@@ -2,7 +2,7 @@
 limbs hidden for about a second) on the CMU subject-35 walks and the milling arm
 (see chainspace.benchmark_robustness).
 
-    .venv/bin/python benchmarks/bench_robustness.py               # full: every walk x 2 cameras, 2 arm trials
+    .venv/bin/python benchmarks/bench_robustness.py               # full: every walk x 2 cameras, 4 arm trials
     .venv/bin/python benchmarks/bench_robustness.py --quick       # 3 walks x 1 camera, 1 short arm trial
     .venv/bin/python benchmarks/bench_robustness.py --plots DIR   # also robustness_noise.png, robustness_missing.png
 
@@ -30,7 +30,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="a short run (about a minute)")
     ap.add_argument("--datasets", nargs="*", default=["walk35", "milling arm"], help='"walk35" and/or "milling arm"')
     ap.add_argument("--cameras", type=int, default=None, help="camera paths per walk (default 2, quick 1)")
-    ap.add_argument("--seeds", type=int, default=None, help="milling-arm trials (default 2, quick 1)")
+    ap.add_argument("--seeds", type=int, default=None, help="milling-arm trials (default 4, quick 1)")
     ap.add_argument("--frames", type=int, default=None, help="frames per milling-arm trial (default 150, quick 60)")
     ap.add_argument("--trajectory", default="random", choices=["random", "milling"],
                     help="milling-arm motion: smooth random joints or the demo's contour path")

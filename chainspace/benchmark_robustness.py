@@ -301,7 +301,7 @@ def run_robustness(quick: bool = False, progress: Callable[[str], None] | None =
     """Run the sweeps; returns one dict row per (dataset, sweep, level) (see the module docstring).
 
     ``quick``: 3 walks x 1 camera, 1 arm trial of 60 frames, 4 noise and 3 missing levels.
-    Defaults otherwise: every subject-35 walk x 2 cameras, 2 arm trials of 150 frames.
+    Defaults otherwise: every subject-35 walk x 2 cameras, 4 arm trials of 150 frames.
     ``base_noise_px`` is the noise under the missing-data sweeps; ``arm_trajectory`` is "random" (smooth
     random motion of every joint) or "milling" (the demo's contour path); ``sweeps`` a subset of
     ("noise", "random", "limb"); ``tool_marker`` tracks the milling arm with :data:`TOOL_MARKER`. Row keys: dataset, sweep ("noise",
@@ -316,7 +316,7 @@ def run_robustness(quick: bool = False, progress: Callable[[str], None] | None =
         rows += _sweep_walk(quick, n_cameras or (1 if quick else 2), base_noise_px, say, sweeps)
     if "milling arm" in datasets:
         try:
-            rows += _sweep_arm(quick, n_seeds or (1 if quick else 2), n_frames or (60 if quick else 150),
+            rows += _sweep_arm(quick, n_seeds or (1 if quick else 4), n_frames or (60 if quick else 150),
                                base_noise_px, say, arm_trajectory, sweeps, tool_marker)
         except ImportError as exc:  # Pinocchio missing: the human rows still count
             say(f"milling arm skipped: {exc}")
