@@ -4,9 +4,14 @@ Every error chainspace raises on purpose derives from :class:`ChainspaceError`, 
 one class. The subclasses also derive from the matching built-in (``ValueError``,
 ``FileNotFoundError``, ``FileExistsError``) so that code written against the built-ins keeps working.
 Messages name what is wrong and where: the file, the line, the joint, the frame.
+
+:func:`located` and :func:`is_real` help write them: where a problem is, and whether an option is a
+finite number.
 """
 
 from __future__ import annotations
+
+import numpy as np
 
 __all__ = [
     "ChainspaceError",
@@ -46,8 +51,6 @@ class ConvergenceWarning(UserWarning):
 
 def is_real(x: object) -> bool:
     """Whether an option's value x is a finite real number (not a bool, a string or an array)."""
-    import numpy as np
-
     return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool) and bool(np.isfinite(x))
 
 
