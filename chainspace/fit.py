@@ -577,9 +577,11 @@ def _motion_prior(unseen: np.ndarray, mu: float, decay_frames: float):
     return (sp.kron(mu * (L.T @ L), sp.eye(nv)) + D1.T @ speed @ D1).tocsr()
 
 
-def _prior_cost(prior, q: np.ndarray) -> float:
+def _smoothed_objective(prior, q: np.ndarray, rn: np.ndarray, w: np.ndarray, delta: float | None) -> float:
+    """What :func:`_smooth_lm` minimises: robust residuals (norms rn (F, J), weights w, Huber threshold
+    delta) plus the motion prior q' prior q'."""
     qf = q.reshape(-1)
-    return float(qf @ (prior @ qf))
+    return float((w * _huber(rn, delta)[0]).sum()) + float(qf @ (prior @ qf))
 
 
 def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
@@ -617,8 +619,7 @@ def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.
         pos, jac = robot.jacobians(q)
         pred, y = view.apply(pos)
         res = pred - tz
-        data = float((w * _huber(np.linalg.norm(res, axis=-1), delta)[0]).sum())
-        return pos, jac, y, res, data + _prior_cost(prior, q)
+        return pos, jac, y, res, _smoothed_objective(prior, q, np.linalg.norm(res, axis=-1), w, delta)
 
     pos, jac, y, res, cost = evaluate(q, view)
     lam, converged, it = 1e-4, False, 0
@@ -1420,7 +1421,7 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
         out = _smooth_lm(robot, robot.continuous(q), tracks, w, view, r["free_prior"], np.ones(6, bool), max_iter,
                          tol, delta, prior)
         n_iter += out[5]
-        return float((w * _huber(out[2], delta)[0]).sum()) + _prior_cost(prior, out[0]), out
+        return _smoothed_objective(prior, out[0], out[2], w, delta), out
 
     def score(r, q, view):
         objective, out = smoothed(r, q, view)
