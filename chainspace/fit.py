@@ -42,7 +42,13 @@ variances of the best: a likelihood-ratio test), applies these rules:
   frame by frame, by moving less plausibly: with the acceleration prior on (the default) the
   candidates are compared by the smoothed objective (robust residuals plus the prior), the mirror
   image of the winner is smoothed and scored too, and the camera side decides only among those that
-  tie there.
+  tie there; of those seen from that side, the motion that moves least is kept.
+* *Where the camera stands round the base.* With a static camera, a turn of the first joint looks
+  like a turn of the camera (the joint is reported relative to frame 0), so how far round the base
+  the camera stands is part of the start, and the smoothed search stays near the side it starts
+  from. With the upper arm hidden for most of a sequence, every start can meet a motion seen from
+  below with the first joint wandering; so the winner is also smoothed from views turned a quarter,
+  a half and three quarters about that joint's axis, and scored with the rest.
 * *Planar bodies on ball-like joints.* Where every tracked point beyond a joint group lies in one
   plane with its centre (a spherical wrist carrying a planar tool; a 7-axis arm's spherical
   shoulder), that part mirrored in depth about the centre is again a pose of the robot, in every
