@@ -29,7 +29,7 @@ browser:
 	  echo "note: chromium could not be installed; the browser test will be skipped"
 
 test: install browser
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto  # one worker per core: the robot-fit tests dominate
 
 bench: install
 	$(BIN)/chainspace bench
