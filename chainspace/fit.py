@@ -1397,25 +1397,25 @@ def _looks_down(view: _View) -> float:
 
 
 def _turned_views(robot: RobotKinematics, q: np.ndarray, view: _View, gauge: np.ndarray,
-                  turns: tuple[float, ...] = (0.5 * np.pi, np.pi, -0.5 * np.pi)) -> list[tuple[np.ndarray, _View]]:
-    """Starts (q, view) that show the motion q (F, nq) from views turned by ``turns`` (radians) about
+                  turns: tuple[float, ...] = (0.5 * np.pi, np.pi, -0.5 * np.pi)) -> list[_View]:
+    """Views that show the motion q (F, nq) as ``view`` shows it turned by ``turns`` (radians) about
     each gauge direction's axis (``gauge`` (nv,): for an arm on a floor, its first joint, whose turn
-    the camera's azimuth imitates). The view comes from the image of the turned robot, so q itself,
-    and the gauge held in frame 0, stay as they are.
+    the camera's azimuth imitates): starts for the smoothed search with q itself, and the gauge held in
+    frame 0, as they are. Each view is fitted to the image of the turned robot.
 
     Why: how far round its base the camera stands is a guess of the start, and the smoothed search
     stays near the side it starts from; at 53 % hidden limbs a motion seen from below, with its first
     joint wandering 60 degrees, beat every start seen from above, though a motion 13 mm from the truth,
     found from a quarter turn, scores as well."""
     pos = robot.positions(q)
-    starts = []
+    views = []
     for v in np.flatnonzero(gauge):
         for turn in turns:
             dv = np.zeros((len(q), robot.nv))
             dv[:, v] = turn
             image = view.apply(robot.positions(robot.integrate(q, dv, clip=False)))[0]  # a turn, not a pose
-            starts.append((q, _camera_view(pos, image, np.ones(pos.shape[:2]), False)))
-    return starts
+            views.append(_camera_view(pos, image, np.ones(pos.shape[:2]), False))
+    return views
 
 
 def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarray, w: np.ndarray, prior,
@@ -1474,8 +1474,8 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
         if near and not known(r["q"]):
             score(r, r["out"][0], r["out"][1])  # else a poor fit of the tracks, or one already scored
     best, r = min(scored, key=lambda sr: sr[0])
-    for q_t, view_t in _turned_views(robot, r["q"], r["out"][1], r["gauge"]):
-        score(r, q_t, view_t)
+    for view_t in _turned_views(robot, r["q"], r["out"][1], r["gauge"]):
+        score(r, r["q"], view_t)
     best, r = min(scored, key=lambda sr: sr[0])
     # a joint seen again after a long gap: the bridges to its other branches that score alike (the
     # acceleration prior charges nothing for a straight ramp), the one that moves least wins

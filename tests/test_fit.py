@@ -432,28 +432,21 @@ def test_turned_views_show_the_motion_as_the_view_shows_it_turned_about_the_firs
     """The smoothed search also starts from views turned about a gauge joint's axis: each turned view
     must show the unchanged motion exactly as the original view shows the robot turned by that joint,
     so only the camera's azimuth differs between the starts."""
-    from chainspace.fit import _turned_views, _View
+    from chainspace.fit import _rotvec, _turned_views, _View
 
     chain, robot = arm
     rng = np.random.default_rng(3)
     q = robot.clip(robot.q_rest + 0.3 * rng.standard_normal((5, robot.nq)))
-    view = _View(np.array([900.0]), np.array([_rotation_about([1.0, 0.2, 0.0], 2.0)]), np.array([[400.0, 300.0]]),
-                 np.zeros(5, int))
+    view = _View(np.array([900.0]), _rotvec(np.array([[2.0, 0.4, 0.0]])), np.array([[400.0, 300.0]]), np.zeros(5, int))
     gauge = np.zeros(robot.nv, bool)
     gauge[0] = True
-    starts = _turned_views(robot, q, view, gauge)
-    assert len(starts) == 3
-    for (q_t, view_t), turn in zip(starts, (0.5 * np.pi, np.pi, -0.5 * np.pi)):
-        np.testing.assert_array_equal(q_t, q)
+    q_before = q.copy()
+    views = _turned_views(robot, q, view, gauge)
+    np.testing.assert_array_equal(q, q_before)  # the starts keep the motion itself
+    assert len(views) == 3
+    for view_t, turn in zip(views, (0.5 * np.pi, np.pi, -0.5 * np.pi)):
         turned = q.copy()
         turned[:, 0] += turn
         want = view.apply(robot.positions(turned))[0]
         np.testing.assert_allclose(view_t.apply(robot.positions(q))[0], want, atol=1e-6)
         assert not np.allclose(view_t.R, view.R)
-
-
-def _rotation_about(axis, angle):
-    from scipy.spatial.transform import Rotation
-
-    axis = np.asarray(axis) / np.linalg.norm(axis)
-    return Rotation.from_rotvec(angle * axis).as_matrix()
