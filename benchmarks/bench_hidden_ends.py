@@ -3,13 +3,13 @@
     python benchmarks/bench_hidden_ends.py            # 8 trials x (first, last second hidden) x 2 settings
     python benchmarks/bench_hidden_ends.py --quick    # 2 trials
 
-Prints one markdown table (see chainspace.benchmark_hidden_ends).
+Prints one markdown table (see chainspace.bench.hidden_ends).
 """
 
 import argparse
 import sys
 
-from chainspace.benchmark_hidden_ends import format_hidden_ends, run_hidden_ends
+from chainspace.bench.hidden_ends import format_hidden_ends, run_hidden_ends
 
 
 def main(argv=None) -> int:

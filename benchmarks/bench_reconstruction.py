@@ -1,4 +1,4 @@
-"""The paper's Table 1 protocol on CMU and DeepMimic sequences (see chainspace.benchmark).
+"""The paper's Table 1 protocol on CMU and DeepMimic sequences (see chainspace.bench.reconstruction).
 
     .venv/bin/python benchmarks/bench_reconstruction.py            # full: 20 cameras per sequence
     .venv/bin/python benchmarks/bench_reconstruction.py --quick    # 3 sequences x 3 cameras per group
@@ -15,7 +15,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # tiny matrices: BLAS thread
 import argparse  # noqa: E402
 import sys
 
-from chainspace.benchmark import format_table, run_benchmark
+from chainspace.bench.reconstruction import format_table, run_benchmark
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -24,7 +24,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cameras", type=int, default=None, help="camera paths per sequence (default 20, quick 3)")
     ap.add_argument("--groups", nargs="*", default=None, help="e.g. walk35 run09")
     ap.add_argument("--noise", type=float, nargs="*", default=[0.0, 2.0, 5.0], help="pixel noise levels")
-    ap.add_argument("--robots", action="store_true", help="append the robot rows of chainspace.benchmark_robots")
+    ap.add_argument("--robots", action="store_true", help="append the robot rows of chainspace.bench.robots")
     args = ap.parse_args(argv)
     extra = []
     if args.robots:

@@ -4,13 +4,13 @@
     python benchmarks/bench_robots.py --quick    # 100 frames, 1 seed
     python benchmarks/bench_robots.py --robots "milling arm" UR10 --seeds 1
 
-Prints one markdown table (see chainspace.benchmark_robots).
+Prints one markdown table (see chainspace.bench.robots).
 """
 
 import argparse
 import sys
 
-from chainspace.benchmark_robots import CONDITIONS, ROBOTS, format_robot_table, run_robot_benchmark
+from chainspace.bench.robots import CONDITIONS, ROBOTS, format_robot_table, run_robot_benchmark
 
 
 def main(argv=None) -> int:

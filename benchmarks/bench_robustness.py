@@ -1,6 +1,6 @@
 """Robustness: 3D error against pixel noise (0-10 px) and missing data (0-50 %, random points and whole
 limbs hidden for about a second) on the CMU subject-35 walks and the milling arm
-(see chainspace.benchmark_robustness).
+(see chainspace.bench.robustness).
 
     .venv/bin/python benchmarks/bench_robustness.py               # full: every walk x 2 cameras, 4 arm trials
     .venv/bin/python benchmarks/bench_robustness.py --quick       # 3 walks x 1 camera, 1 short arm trial
@@ -21,7 +21,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # tiny matrices: BLAS thread
 import argparse  # noqa: E402
 import sys  # noqa: E402
 
-from chainspace.benchmark_robustness import (SWEEPS, check_targets, format_robustness, plot_robustness,  # noqa: E402
+from chainspace.bench.robustness import (SWEEPS, check_targets, format_robustness, plot_robustness,  # noqa: E402
                                              run_robustness)
 
 

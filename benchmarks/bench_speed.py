@@ -3,8 +3,8 @@
     .venv/bin/python benchmarks/bench_speed.py            # 100 .. 100,000 frames
     .venv/bin/python benchmarks/bench_speed.py --quick    # up to 10,000 frames
 
-A 17-joint human17 chain moving smoothly (chainspace.synthetic.swing_motion at 120 Hz), a low-motion
-orbit camera, 2 px noise (chainspace.benchmark.run_speed). Prints a markdown table; frames/s that
+A 17-joint human17 chain moving smoothly (chainspace.synthetic.views.swing_motion at 120 Hz), a low-motion
+orbit camera, 2 px noise (chainspace.bench.reconstruction.run_speed). Prints a markdown table; frames/s that
 stay flat show cost linear in frames. Each size is repeated for about a second and the fastest run
 counts (the machine may be shared).
 
@@ -21,7 +21,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # thin matrices: BLAS thread
 import argparse  # noqa: E402
 import sys  # noqa: E402
 
-from chainspace.benchmark import format_speed, run_speed  # noqa: E402
+from chainspace.bench.reconstruction import format_speed, run_speed  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:

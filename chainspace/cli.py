@@ -142,7 +142,7 @@ def _csv_columns(path: Path, names: list[str]) -> np.ndarray:
 
 
 def _check_outputs(paths: list[Path | None], overwrite: bool) -> None:
-    from .results import check_writable
+    from .io.results import check_writable
 
     check_writable([p for p in paths if p is not None], overwrite)
 
@@ -174,7 +174,7 @@ Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace existing o
 @_guarded
 def chains() -> None:
     """List the chain descriptions shipped with chainspace, with their joint counts."""
-    from .descriptions import list_shipped, shipped
+    from .io.descriptions import list_shipped, shipped
 
     for name in list_shipped():
         chain = shipped(name)
@@ -210,10 +210,10 @@ def reconstruct(
     Writes reconstruction.npz (all arrays), reconstruction.csv (frame,joint,x,y,z in metres) and
     reconstruction.json (convergence, errors, timings) into --out. Exit code 1 if it did not converge.
     """
-    from .descriptions import load_chain
-    from .reconstruction import reconstruct as run
-    from .results import save_results
-    from .tracks import load_tracks
+    from .io.descriptions import load_chain
+    from .reconstruction.pipeline import reconstruct as run
+    from .io.results import save_results
+    from .io.tracks import load_tracks
 
     _check_outputs([out / f"reconstruction.{x}" for x in ("npz", "csv", "json")] + [bvh, html], overwrite)
     kc = load_chain(chain)
@@ -225,12 +225,12 @@ def reconstruct(
     for p in save_results(rec, out, overwrite=overwrite):
         _say(f"wrote {p}")
     if bvh is not None:
-        from .bvh import save_bvh
-        from .viewer import upright_poses
+        from .io.bvh import save_bvh
+        from .view.viewer import upright_poses
 
         _say(f"wrote {save_bvh(bvh, kc, upright_poses(rec, truth=X_true), fps, overwrite)}")
     if html is not None:
-        from .viewer import write_html
+        from .view.viewer import write_html
 
         _say(f"wrote {write_html(html, rec, truth=X_true, fps=fps, overwrite=overwrite)}")
     typer.echo(repr(rec))
@@ -257,9 +257,9 @@ def fit(
     Writes joint_angles.npz, joint_angles.csv (frame, one column per joint, radians) and
     joint_angles.json into --out. Exit code 1 if some frames did not converge.
     """
-    from .descriptions import load_chain
-    from .fit import fit_joint_angles
-    from .results import load_results, save_results
+    from .io.descriptions import load_chain
+    from .robot.fit import fit_joint_angles
+    from .io.results import load_results, save_results
 
     _check_outputs([out / f"joint_angles.{x}" for x in ("npz", "csv", "json")] + [html], overwrite)
     urdf_path = None if urdf is None else _urdf_path(urdf)
@@ -270,8 +270,8 @@ def fit(
     else:
         if urdf_path is None:
             raise TrackError("fitting 2D tracks needs --urdf")
-        from .reconstruction import reconstruct as run
-        from .tracks import load_tracks
+        from .reconstruction.pipeline import reconstruct as run
+        from .io.tracks import load_tracks
 
         kc = load_chain(urdf_path)
         W, conf, _ = load_tracks(source, chain=kc, format=format)
@@ -282,7 +282,7 @@ def fit(
     for p in save_results(result, out, overwrite=overwrite):
         _say(f"wrote {p}")
     if html is not None:
-        from .viewer import write_html
+        from .view.viewer import write_html
 
         _say(f"wrote {write_html(html, rec, fit=result, fps=fps, overwrite=overwrite)}")
     typer.echo(repr(result))
@@ -295,7 +295,7 @@ def _urdf_path(urdf: str) -> str:
     p = Path(urdf)
     if p.is_file():
         return str(p)
-    from .descriptions import shipped_path
+    from .io.descriptions import shipped_path
 
     return str(shipped_path(urdf))
 
@@ -319,8 +319,8 @@ def validate(
 ) -> None:
     """Validate a joint-angle fit: per-joint angle errors against the truth, reprojection error, and
     bone lengths against the URDF. Prints the report table; exit code 1 if validation failed."""
-    from .results import load_results, save_results
-    from .validation import validate as run
+    from .io.results import load_results, save_results
+    from .robot.validation import validate as run
 
     if out is not None:
         _check_outputs([out / "validation.json", out / "validation.md"], overwrite)
@@ -357,8 +357,8 @@ def view(
     With --html, writes one HTML file that a browser opens from disk with no server or network;
     otherwise starts a live viewer, prints its URL and runs until Ctrl-C.
     """
-    from .results import load_results
-    from .viewer import show, write_html
+    from .io.results import load_results
+    from .view.viewer import show, write_html
 
     if html is not None:
         _check_outputs([html], overwrite)
@@ -382,11 +382,11 @@ def view(
 
 # Benchmark suites: candidates (module, function returning rows, function formatting them), first found wins.
 _SUITES = {
-    "reconstruction": [("benchmark", "run_benchmark", "format_table")],
-    "speed": [("benchmark", "run_speed", "format_speed")],
-    "robustness": [("benchmark_robustness", "run_robustness", "format_robustness")],
-    "robots": [("benchmark_robots", "run_robot_benchmark", "format_robot_table")],
-    "hidden-ends": [("benchmark_hidden_ends", "run_hidden_ends", "format_hidden_ends")],
+    "reconstruction": [("bench.reconstruction", "run_benchmark", "format_table")],
+    "speed": [("bench.reconstruction", "run_speed", "format_speed")],
+    "robustness": [("bench.robustness", "run_robustness", "format_robustness")],
+    "robots": [("bench.robots", "run_robot_benchmark", "format_robot_table")],
+    "hidden-ends": [("bench.hidden_ends", "run_hidden_ends", "format_hidden_ends")],
 }
 
 
@@ -412,7 +412,7 @@ def bench(
     overwrite: Overwrite = False,
 ) -> None:
     """Run a benchmark and print its table (millimetres, degrees, seconds)."""
-    from .results import atomic_write, write_json
+    from .io.results import atomic_write, write_json
 
     stem = None if out is None else out / f"bench_{suite.value}"
     if stem is not None:
@@ -471,9 +471,9 @@ def demo(
 
 def _demo_extras(out: Path, summary: dict, overwrite: bool) -> list[Path]:
     """The viewer and plots for a demo run, from the objects (or files) its summary names."""
-    from .plots import plot_convergence, plot_joint_angles, plot_joint_errors
-    from .results import load_results
-    from .viewer import write_html
+    from .view.plots import plot_convergence, plot_joint_angles, plot_joint_errors
+    from .io.results import load_results
+    from .view.viewer import write_html
 
     def obj(key: str, file_key: str) -> Any:
         if summary.get(key) is not None:

@@ -43,7 +43,7 @@ def _say(progress: bool | Callable[[str], None], msg: str) -> None:
 
 
 def _write_angles_csv(path: Path, q: np.ndarray, names: list[str], fps: float, overwrite: bool) -> None:
-    from .results import atomic_write
+    from .io.results import atomic_write
 
     with atomic_write(path, "w", overwrite, newline="") as f:
         w = csv.writer(f)
@@ -65,14 +65,14 @@ def run_demo(out_dir: str | Path, *, overwrite: bool = False, progress: bool | C
     ``"report"``, ``"truth_q"``, ``"truth_positions"``, ``"trial"``), ``"passed"``, ``"table"``,
     ``"message"``, ``"files"`` (paths written) and ``"timings"`` (s).
     """
-    from .descriptions import shipped_path
-    from .fit import fit_joint_angles
-    from .reconstruction import reconstruct
-    from .results import check_writable, save_results
-    from .robot_synthetic import synthesize
-    from .tracks import load_tracks, save_tracks
-    from .urdf import from_urdf
-    from .validation import validate
+    from .io.descriptions import shipped_path
+    from .robot.fit import fit_joint_angles
+    from .reconstruction.pipeline import reconstruct
+    from .io.results import check_writable, save_results
+    from .synthetic.robot import synthesize
+    from .io.tracks import load_tracks, save_tracks
+    from .io.urdf import from_urdf
+    from .robot.validation import validate
 
     out = Path(out_dir)
     if out.exists() and not out.is_dir():

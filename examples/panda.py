@@ -5,7 +5,7 @@ through the last tracked points) and the fingers are then not observable, and ar
 """
 
 import chainspace as cs
-from chainspace.descriptions import example_robot_urdf
+from chainspace.io.descriptions import example_robot_urdf
 
 links = ["panda_link0", "panda_link1", "panda_link3", "panda_link4", "panda_link5", "panda_link7",
          "panda_link8", "panda_hand_tcp"]

@@ -8,7 +8,7 @@ flange axis to see the last joint.
 """
 
 import chainspace as cs
-from chainspace.descriptions import example_robot_urdf
+from chainspace.io.descriptions import example_robot_urdf
 
 urdf = example_robot_urdf("ur10")
 chain = cs.from_urdf(urdf, extra_frames={"tool_mark": ("tool0", [0.0, 0.08, 0.05])})

@@ -19,7 +19,7 @@ def rng() -> np.random.Generator:
 @pytest.fixture(scope="session")
 def milling_arm_urdf() -> Path:
     """The shipped milling-arm URDF."""
-    from chainspace.descriptions import shipped_path
+    from chainspace.io.descriptions import shipped_path
 
     return shipped_path("milling_arm")
 
@@ -30,7 +30,7 @@ def example_urdf():
     from chainspace.errors import ChainspaceError
 
     def find(name: str) -> Path:
-        from chainspace.descriptions import example_robot_urdf
+        from chainspace.io.descriptions import example_robot_urdf
 
         try:
             return example_robot_urdf(name)

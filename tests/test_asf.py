@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from chainspace import ChainspaceError, DescriptionError, DescriptionNotFoundError, from_asf, load_amc
-from chainspace.datasets import CMU_JOINTS, bundled_data_dir, shared_data_dir
+from chainspace.io.datasets import CMU_JOINTS, bundled_data_dir, shared_data_dir
 
 CMU = bundled_data_dir() / "cmu"
 UNIT = 0.0254 / 0.45  # metres per CMU ASF unit
@@ -190,7 +190,7 @@ def test_chain_not_from_asf_is_refused():
 
 @pytest.mark.skipif(shared_data_dir() is None, reason="../shared/data is absent")
 def test_every_shared_cmu_trial_loads_with_constant_bones():
-    from chainspace.datasets import cmu_trials
+    from chainspace.io.datasets import cmu_trials
 
     n = 0
     for subject in ("02", "07", "16", "35", "49"):

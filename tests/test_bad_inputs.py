@@ -90,7 +90,7 @@ def test_zero_length_bone_is_a_valid_description_but_not_a_valid_initial_pose():
     """Decision (with H1's chain and H3's reconstruct): descriptions may have coincident points (a
     spherical wrist, an ASF bone of length 0); a reconstruction needs every bone of its initial pose
     to have a length, and says which one has none."""
-    from chainspace.reconstruction import reconstruct
+    from chainspace.reconstruction.pipeline import reconstruct
 
     rest = [[0, 0, 0], [0, 0, 0.5], [0, 0, 0.5], [0.3, 0, 0.5]]
     chain = KinematicChain(["root", "a", "b", "c"], [("root", "a"), ("a", "b"), ("a", "c")], rest)
@@ -298,7 +298,7 @@ def test_urdf_bad_options(arm_urdf, kwargs, match):
 def test_urdf_with_one_link_is_a_one_point_chain(tmp_path):
     """BUGS.md F1 (fixed): a URDF without joints crashed in point_positions."""
     from chainspace import from_urdf
-    from chainspace.reconstruction import reconstruct
+    from chainspace.reconstruction.pipeline import reconstruct
 
     path = tmp_path / "one.urdf"
     path.write_text('<robot name="r"><link name="only"/></robot>')
@@ -393,8 +393,8 @@ TRACK_FILES = [
 
 @pytest.mark.parametrize("case, make, match, kwargs", TRACK_FILES, ids=lambda v: v if isinstance(v, str) else "")
 def test_track_file_bad(tmp_path, case, make, match, kwargs):
-    from chainspace.datasets import human17
-    from chainspace.tracks import load_tracks
+    from chainspace.io.datasets import human17
+    from chainspace.io.tracks import load_tracks
 
     path = make(tmp_path / case)
     kwargs = dict(kwargs)
@@ -404,7 +404,7 @@ def test_track_file_bad(tmp_path, case, make, match, kwargs):
 
 
 def test_missing_track_file(tmp_path):
-    from chainspace.tracks import load_tracks
+    from chainspace.io.tracks import load_tracks
 
     with pytest.raises(DescriptionNotFoundError, match="no such track file"):
         load_tracks(tmp_path / "nope.csv")
@@ -424,7 +424,7 @@ def test_missing_track_file(tmp_path):
     ],
 )
 def test_save_tracks_bad(tmp_path, tracks, names, confidence, match):
-    from chainspace.tracks import save_tracks
+    from chainspace.io.tracks import save_tracks
 
     raises_located(save_tracks, tmp_path / "t.csv", tracks, names, confidence, match=match)
     assert not list(tmp_path.iterdir())  # nothing written
@@ -433,7 +433,7 @@ def test_save_tracks_bad(tmp_path, tracks, names, confidence, match):
 # ================================================================================ reconstruct
 @pytest.fixture(scope="module")
 def human():
-    from chainspace.datasets import human17
+    from chainspace.io.datasets import human17
 
     return human17()
 
@@ -441,7 +441,7 @@ def human():
 @pytest.fixture(scope="module")
 def walk(human):
     """(truth (F, 17, 3), tracks (F, 17, 2) px): swinging limbs seen by a slowly orbiting camera."""
-    from chainspace.synthetic import observe, orbit_cameras, swing_motion
+    from chainspace.synthetic.views import observe, orbit_cameras, swing_motion
 
     X = swing_motion(human, 40, fps=60.0, seed=2)
     W = observe(X, orbit_cameras(40, scale=400.0, seed=3), translations=[450.0, 450.0])
@@ -449,7 +449,7 @@ def walk(human):
 
 
 def _reconstruct(*args, **kwargs):
-    from chainspace.reconstruction import reconstruct
+    from chainspace.reconstruction.pipeline import reconstruct
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
@@ -582,7 +582,7 @@ def _nearly_constant_with_an_outlier():
 
 
 def _valid_small_tracks(**options):
-    from chainspace.synthetic import observe, orbit_cameras, swing_motion
+    from chainspace.synthetic.views import observe, orbit_cameras, swing_motion
     from test_fuzz import CHAIN
 
     X = swing_motion(CHAIN, 12, seed=1)
@@ -630,7 +630,7 @@ def test_reconstruct_never_fails_numerically(make):
 # -------------------------------------------------------------------------------- non-convergence
 @pytest.mark.parametrize("method", ["kcs", "default"])
 def test_non_convergence_is_a_flagged_result_with_a_warning(human, walk, method):
-    from chainspace.reconstruction import reconstruct
+    from chainspace.reconstruction.pipeline import reconstruct
 
     with pytest.warns(ConvergenceWarning, match="iteration limit"):
         rec = reconstruct(walk[1], human, method=method, max_iter=1, tol=1e-15)
@@ -644,7 +644,7 @@ def test_non_convergence_is_a_flagged_result_with_a_warning(human, walk, method)
 @pytest.fixture(scope="module")
 def rigid_scene(human):
     """A rigid 17-point shape under strong camera motion (120 degree orbit): exactly recoverable."""
-    from chainspace.synthetic import observe, orbit_cameras
+    from chainspace.synthetic.views import observe, orbit_cameras
 
     rng = np.random.default_rng(0)
     shape = human.rest_pose + 0.05 * rng.normal(size=human.rest_pose.shape)
@@ -701,7 +701,7 @@ def test_gaps_at_the_start_and_end_of_a_sequence(human, walk):
 
 # ================================================================================ writing files
 def test_atomic_write_never_overwrites_unless_asked(tmp_path):
-    from chainspace.results import atomic_write
+    from chainspace.io.results import atomic_write
 
     path = tmp_path / "out.txt"
     path.write_text("old")
@@ -716,7 +716,7 @@ def test_atomic_write_never_overwrites_unless_asked(tmp_path):
 
 @pytest.mark.parametrize("existing", [False, True])
 def test_interrupted_write_leaves_nothing_partial(tmp_path, existing):
-    from chainspace.results import atomic_write
+    from chainspace.io.results import atomic_write
 
     path = tmp_path / "out.npz"
     if existing:
@@ -730,7 +730,7 @@ def test_interrupted_write_leaves_nothing_partial(tmp_path, existing):
 
 
 def test_atomic_write_into_a_folder_path_is_refused(tmp_path):
-    from chainspace.results import atomic_write
+    from chainspace.io.results import atomic_write
 
     with pytest.raises(ChainspaceError), atomic_write(tmp_path, "w", overwrite=True) as f:
         f.write("x")
@@ -738,8 +738,8 @@ def test_atomic_write_into_a_folder_path_is_refused(tmp_path):
 
 def test_writers_refuse_to_overwrite(tmp_path, human, walk):
     from chainspace import save_bvh, save_skeleton_file
-    from chainspace.results import save_results
-    from chainspace.tracks import save_tracks
+    from chainspace.io.results import save_results
+    from chainspace.io.tracks import save_tracks
 
     X, W = walk
     rec = _reconstruct(W, human)
@@ -771,7 +771,7 @@ def test_writers_refuse_to_overwrite(tmp_path, human, walk):
 
 
 def test_save_results_writes_nothing_when_one_target_exists(tmp_path, human, walk):
-    from chainspace.results import save_results
+    from chainspace.io.results import save_results
 
     rec = _reconstruct(walk[1], human)
     (tmp_path / "reconstruction.json").write_text("{}")
@@ -791,7 +791,7 @@ def arm():
 
 @pytest.fixture(scope="module")
 def arm_trial(arm):
-    from chainspace.robot_synthetic import synthesize
+    from chainspace.synthetic.robot import synthesize
 
     return synthesize(arm, n_frames=6, noise_px=0.0, seed=0)
 
@@ -816,7 +816,7 @@ def arm_trial(arm):
          "camera", "transform", "max_iter", "view_from", "tol_str"],
 )
 def test_fit_bad(arm, arm_trial, make, kwargs, match):
-    from chainspace.fit import fit_joint_angles
+    from chainspace.robot.fit import fit_joint_angles
 
     kwargs = {"chain": arm, **kwargs}
     with warnings.catch_warnings():
@@ -825,14 +825,14 @@ def test_fit_bad(arm, arm_trial, make, kwargs, match):
 
 
 def test_fit_needs_a_urdf(arm_trial, human):
-    from chainspace.fit import fit_joint_angles
+    from chainspace.robot.fit import fit_joint_angles
 
     raises_located(fit_joint_angles, arm_trial.positions, match="needs the robot's URDF")
     raises_located(fit_joint_angles, arm_trial.positions, "/no/such/robot.urdf", match="not found")
 
 
 def test_fit_non_convergence_is_flagged_with_a_warning(arm, arm_trial):
-    from chainspace.fit import fit_joint_angles
+    from chainspace.robot.fit import fit_joint_angles
 
     X = arm_trial.positions + np.random.default_rng(0).normal(scale=0.05, size=arm_trial.positions.shape)
     with pytest.warns(ConvergenceWarning):
@@ -879,14 +879,14 @@ def test_fit_non_convergence_is_flagged_with_a_warning(arm, arm_trial):
          "seed_negative"],
 )
 def test_synthesize_bad(arm, kwargs, match):
-    from chainspace.robot_synthetic import synthesize
+    from chainspace.synthetic.robot import synthesize
 
     raises_located(synthesize, arm, match=match, **{"n_frames": 5, **kwargs})
 
 
 def test_synthesize_takes_numpy_scalars(arm):
     """The checks of BUGS.md #9 refuse what is wrong, not numpy's own numbers."""
-    from chainspace.robot_synthetic import synthesize
+    from chainspace.synthetic.robot import synthesize
 
     t = synthesize(arm, n_frames=np.int64(3), fps=np.float32(25), noise_px=np.float64(0.5), drop=0,
                    image_height_px=600, elevation_deg=np.float32(-20), seed=np.random.default_rng(0),
@@ -896,7 +896,7 @@ def test_synthesize_takes_numpy_scalars(arm):
 
 
 def test_synthesize_needs_a_urdf_chain(human):
-    from chainspace.robot_synthetic import synthesize
+    from chainspace.synthetic.robot import synthesize
 
     raises_located(synthesize, human, match="has no URDF")
 
@@ -904,7 +904,7 @@ def test_synthesize_needs_a_urdf_chain(human):
 # -------------------------------------------------------------------------------- robots: missing data
 @pytest.fixture(scope="module")
 def arm_motion(arm):
-    from chainspace.robot_synthetic import synthesize
+    from chainspace.synthetic.robot import synthesize
 
     trial = synthesize(arm, n_frames=12, noise_px=0.0, seed=1)
     gone = np.random.default_rng(0).random(trial.positions.shape[:2]) < 0.2
@@ -914,7 +914,7 @@ def arm_motion(arm):
 
 
 def _fit_missing(arm, trial, gone, transform):
-    from chainspace.fit import fit_joint_angles
+    from chainspace.robot.fit import fit_joint_angles
 
     X = np.where(gone[..., None], np.nan, trial.positions)
     with warnings.catch_warnings():
@@ -942,7 +942,7 @@ def test_fit_joint_unseen_in_a_frame_keeps_its_neighbours_value(arm, arm_motion)
 
 
 def test_fit_zero_confidence_makes_a_corrupted_point_harmless(arm, arm_motion):
-    from chainspace.fit import fit_joint_angles
+    from chainspace.robot.fit import fit_joint_angles
 
     trial = arm_motion[0]
     X = trial.positions.copy()
@@ -956,8 +956,8 @@ def test_fit_zero_confidence_makes_a_corrupted_point_harmless(arm, arm_motion):
 
 # -------------------------------------------------------------------------------- missing-data patterns
 def test_hidden_points_patterns_of_the_robustness_benchmark(human):
-    """The benchmark's random and limb occlusions hide what they say (chainspace.benchmark_robustness)."""
-    from chainspace.benchmark_robustness import hide_limbs, hide_random, limb_groups
+    """The benchmark's random and limb occlusions hide what they say (chainspace.bench.robustness)."""
+    from chainspace.bench.robustness import hide_limbs, hide_random, limb_groups
 
     W = np.zeros((600, 17, 2))
     rnd = hide_random(W, 0.3, np.random.default_rng(0))
@@ -974,7 +974,7 @@ def test_hidden_points_patterns_of_the_robustness_benchmark(human):
 
 
 def test_robustness_runs_only_the_chosen_sweeps():
-    from chainspace.benchmark_robustness import _plan
+    from chainspace.bench.robustness import _plan
 
     assert {sweep for sweep, _, _ in _plan(True, 2.0, ["limb"])} == {"limb"}
     assert [n for _, n, _ in _plan(True, 2.0, ["noise"])] == [0.0, 2.0, 5.0, 10.0]
@@ -982,7 +982,7 @@ def test_robustness_runs_only_the_chosen_sweeps():
 
 
 def _sweep_rows(errors, sweep="random", levels=(0.0, 0.1, 0.2, 0.3, 0.4, 0.5)):
-    from chainspace.benchmark_robustness import _add_ratios
+    from chainspace.bench.robustness import _add_ratios
 
     out = [dict(dataset="d", sweep=sweep, noise_px=m if sweep == "noise" else 2.0,
                 missing=0.0 if sweep == "noise" else m, hidden=0.0 if sweep == "noise" else m, error_mm=e,
@@ -993,7 +993,7 @@ def _sweep_rows(errors, sweep="random", levels=(0.0, 0.1, 0.2, 0.3, 0.4, 0.5)):
 
 
 def _targets(errors, sweep="random", levels=(0.0, 0.1, 0.2, 0.3, 0.4, 0.5)):
-    from chainspace.benchmark_robustness import check_targets
+    from chainspace.bench.robustness import check_targets
 
     return {name: (ok, detail) for name, ok, detail in check_targets(_sweep_rows(errors, sweep, levels))}
 
@@ -1039,7 +1039,7 @@ def test_robustness_targets_detect_a_cliff():
     ],
 )
 def test_cliff_rule_on_synthetic_sweeps(levels, errors, cliff):
-    from chainspace.benchmark_robustness import find_cliffs
+    from chainspace.bench.robustness import find_cliffs
 
     c = find_cliffs(levels, errors)
     assert bool(c["cliff"].any()) is cliff, (c["slope_ratio"], c["jump"])
@@ -1053,7 +1053,7 @@ def test_no_ratio_to_an_exact_result():
 
 
 def test_cliff_rule_which_rule_fires():
-    from chainspace.benchmark_robustness import find_cliffs
+    from chainspace.bench.robustness import find_cliffs
 
     arm = find_cliffs((0, .217, .587), (127.8, 72.9, 551.2))
     assert not arm["steep"].any() and arm["jumped"].tolist() == [False, True]
@@ -1067,7 +1067,7 @@ def test_cliff_rule_which_rule_fires():
 
 
 def test_robustness_report_states_the_cliff_rule():
-    from chainspace.benchmark_robustness import CLIFF_RULE, format_robustness
+    from chainspace.bench.robustness import CLIFF_RULE, format_robustness
 
     text = format_robustness(_sweep_rows([127.8, 72.9, 551.2], "limb", (0.0, 0.217, 0.587))
                              + _sweep_rows([17.2, 20.9, 23.7, 35.9], "noise", (0.0, 2.0, 5.0, 10.0)))

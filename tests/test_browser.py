@@ -48,8 +48,8 @@ def _orange(img):
 
 
 def _robot_fit(n_frames=60):
-    descriptions = pytest.importorskip("chainspace.descriptions")
-    fit_mod = pytest.importorskip("chainspace.fit")
+    descriptions = pytest.importorskip("chainspace.io.descriptions")
+    fit_mod = pytest.importorskip("chainspace.robot.fit")
     chain = descriptions.shipped("milling_arm")
     robot = fit_mod.RobotKinematics(chain.metadata["urdf_path"], chain)
     t = np.arange(n_frames)[:, None] / 30
@@ -64,7 +64,7 @@ def _robot_pixels(img):
 
 
 def test_browser_draws_the_robot_from_a_file(tmp_path):
-    from chainspace.viewer import write_html
+    from chainspace.view.viewer import write_html
 
     html = write_html(tmp_path / "robot.html", fit=_robot_fit())
     img = _screenshot(html, tmp_path)

@@ -17,7 +17,7 @@ from chainspace import (
     load_bvh,
     save_bvh,
 )
-from chainspace.datasets import cmu_walk, human17
+from chainspace.io.datasets import cmu_walk, human17
 
 # An arm in centimetres: root at (0, 100, 0), upper arm 30 cm along +x, forearm 25 cm, a hand End Site.
 ARM = """HIERARCHY

@@ -3,7 +3,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from chainspace import TrackError
-from chainspace.camera import fit_cameras, project
+from chainspace.cameras.weak import fit_cameras, project
 
 
 def _case(F=40, L=12, seed=0, noise=0.0):

@@ -20,9 +20,9 @@ def _run(*args: str):
 @pytest.fixture(scope="module")
 def walk(tmp_path_factory):
     """Synthetic 2D tracks (CSV) of a bundled CMU walk, seen by one orbiting camera."""
-    datasets = pytest.importorskip("chainspace.datasets")
-    synthetic = pytest.importorskip("chainspace.synthetic")
-    from chainspace.tracks import save_tracks
+    datasets = pytest.importorskip("chainspace.io.datasets")
+    synthetic = pytest.importorskip("chainspace.synthetic.views")
+    from chainspace.io.tracks import save_tracks
 
     d = tmp_path_factory.mktemp("walk")
     chain, poses = datasets.human17(), datasets.cmu_walk(35, 1)[:40]
@@ -103,7 +103,7 @@ def test_usage_errors_exit_2(tmp_path):
 
 
 def test_bench_dispatches_to_the_suite(monkeypatch):
-    benchmark = pytest.importorskip("chainspace.benchmark")
+    benchmark = pytest.importorskip("chainspace.bench.reconstruction")
     calls = []
 
     def fake_run(*, quick, progress):
@@ -137,7 +137,7 @@ def _saved_fit(tmp_path, F=20):
     from types import SimpleNamespace
 
     from chainspace.chain import KinematicChain
-    from chainspace.results import save_results
+    from chainspace.io.results import save_results
 
     chain = KinematicChain(["base", "tip"], [("base", "tip")], name="arm")
     fit = SimpleNamespace(q=np.zeros((F, 2)), joint_names=["j1", "j2"], observable=np.ones(2, bool),
@@ -164,7 +164,7 @@ def test_validate_exit_code_follows_the_report(monkeypatch, tmp_path, passed):
         def to_dict(self):
             return {"passed": self.passed, "joints": [{"name": "j1", "rms_deg": 0.1, "max_deg": 0.2}]}
 
-    _fake_module(monkeypatch, "validation", validate=Report)
+    _fake_module(monkeypatch, "robot.validation", validate=Report)
     fit_file = _saved_fit(tmp_path)
     np.save(tmp_path / "truth.npy", np.full((20, 2), 0.5))
     result = runner.invoke(app, ["validate", str(fit_file), "--truth", str(tmp_path / "truth.npy"), "--out",
@@ -190,8 +190,8 @@ def test_validate_exit_code_follows_the_report(monkeypatch, tmp_path, passed):
 def test_demo_adds_viewer_and_plots(monkeypatch, tmp_path):
     """`chainspace demo` runs chainspace.demo.run_demo, then writes the viewer and plots it returns."""
     pytest.importorskip("pinocchio")
-    descriptions = pytest.importorskip("chainspace.descriptions")
-    fit_mod = pytest.importorskip("chainspace.fit")
+    descriptions = pytest.importorskip("chainspace.io.descriptions")
+    fit_mod = pytest.importorskip("chainspace.robot.fit")
     from types import SimpleNamespace
 
     chain = descriptions.shipped("milling_arm")

@@ -1,4 +1,4 @@
-"""chainspace.datasets: Z-up metres, human17 mapping, bundled fallback, shared data when present."""
+"""chainspace.io.datasets: Z-up metres, human17 mapping, bundled fallback, shared data when present."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from chainspace import DescriptionError, DescriptionNotFoundError, TrackError
-from chainspace import datasets as ds
+from chainspace.io import datasets as ds
 
 needs_shared = pytest.mark.skipif(ds.shared_data_dir() is None, reason="../shared/data is absent")
 

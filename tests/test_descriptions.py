@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import chainspace.descriptions as descriptions
-from chainspace.descriptions import (
+import chainspace.io.descriptions as descriptions
+from chainspace.io.descriptions import (
     EXAMPLE_ROBOTS,
     example_robot_urdf,
     list_shipped,

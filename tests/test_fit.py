@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 
 from chainspace.errors import ChainspaceError, TrackError
-from chainspace.fit import RobotKinematics, fit_joint_angles, similarity_align
-from chainspace.robot_synthetic import synthesize
-from chainspace.urdf import from_urdf
+from chainspace.robot.kinematics import RobotKinematics
+from chainspace.robot.fit import fit_joint_angles
+from chainspace.robot.views import similarity_align
+from chainspace.synthetic.robot import synthesize
+from chainspace.io.urdf import from_urdf
 
 ROBOTS = __import__("pathlib").Path(__file__).resolve().parents[1] / "robots"
 
@@ -154,7 +156,8 @@ def test_bad_shapes(arm):
 def test_sequence_branch_choice_repairs_frames_on_a_wrong_branch(arm):
     """Frames started far off (a local minimum a smooth solver keeps) are put back on the true path
     by the sequence-level (Viterbi) choice among per-frame IK solutions, with the true camera."""
-    from chainspace.fit import _camera_to_rotation, _View, _viterbi_branches
+    from chainspace.robot.views import _camera_to_rotation, _View
+    from chainspace.robot.candidates import _viterbi_branches
 
     chain, robot = arm
     trial = synthesize(chain, n_frames=20, noise_px=0.0, seed=7)
@@ -178,7 +181,7 @@ def test_sequence_branch_choice_repairs_frames_on_a_wrong_branch(arm):
 def test_wrist_turned_half_a_turn_goes_back_to_the_rest_branch(arm):
     """A spherical wrist turned half a turn with the next joint mirrored puts every point in the same
     place: the path is moved, continuously, to the branch nearer the rest pose, and no point moves."""
-    from chainspace.fit import _nearest_rest_branch
+    from chainspace.robot.candidates import _nearest_rest_branch
 
     chain, robot = arm
     trial = synthesize(chain, n_frames=60, noise_px=0.0, seed=2)
@@ -196,8 +199,8 @@ def test_wrist_turned_half_a_turn_goes_back_to_the_rest_branch(arm):
 def _benchmark_robot_fit(name, n_frames, seed):
     """A benchmark robot's noise-free tracks reconstructed then fitted: (fit, errors (F, nq) rad with
     relative joints counted from frame 0, judged joints (nq,) bool)."""
-    from chainspace.benchmark_robots import robot_chain
-    from chainspace.reconstruction import reconstruct
+    from chainspace.bench.robots import robot_chain
+    from chainspace.reconstruction.pipeline import reconstruct
 
     chain = robot_chain(name)
     trial = synthesize(chain, n_frames=n_frames, noise_px=0.0, seed=seed)
@@ -267,9 +270,9 @@ def test_random_missing_points_do_not_pull_the_wrist_off_its_motion():
     # benchmark's protocol, 60 frames). A direction unseen in a frame used to be held at its value from
     # the fit frame by frame, which the smoothed fit could not move: held on the wrong branch, it pulled
     # its neighbours along (16 degrees worst joint here). The smoothed fit now frees it (measured 4.3).
-    from chainspace.benchmark_robots import trial_errors
-    from chainspace.benchmark_robustness import TOOL_MARKER, hide_random
-    from chainspace.reconstruction import reconstruct
+    from chainspace.bench.robots import trial_errors
+    from chainspace.bench.robustness import TOOL_MARKER, hide_random
+    from chainspace.reconstruction.pipeline import reconstruct
 
     chain = from_urdf(ROBOTS / "milling_arm.urdf", extra_frames=TOOL_MARKER)
     trial = synthesize(chain, n_frames=60, noise_px=2.0, seed=1)
@@ -284,9 +287,9 @@ def test_random_missing_points_do_not_pull_the_wrist_off_its_motion():
 def _limb_sweep_trial(missing):
     """The robustness benchmark's first milling-arm trial of the limb sweep at ``missing``, reconstructed
     and fitted: (hidden (F, J), (worst joint RMS degrees, 3D error m))."""
-    from chainspace.benchmark_robots import trial_errors
-    from chainspace.benchmark_robustness import TOOL_MARKER, _seed, hide_limbs, limb_groups
-    from chainspace.reconstruction import reconstruct
+    from chainspace.bench.robots import trial_errors
+    from chainspace.bench.robustness import TOOL_MARKER, _seed, hide_limbs, limb_groups
+    from chainspace.reconstruction.pipeline import reconstruct
 
     chain = from_urdf(ROBOTS / "milling_arm.urdf", extra_frames=TOOL_MARKER)
     trial = synthesize(chain, n_frames=150, noise_px=2.0, seed=_seed("arm", 0))
@@ -327,7 +330,8 @@ def test_the_prior_brings_a_joint_to_rest_past_its_last_sighting(arm):
     # Held at a steady turn where seen, the prior's minimum carries them on: with the speed decay their
     # steps shrink by exp(-1 / (0.5 s x 30 fps)) a frame (away from the last frame, whose free end
     # bends the curve); without it, at the last seen speed.
-    from chainspace.fit import _motion_prior, _unseen
+    from chainspace.robot.solver import _motion_prior
+    from chainspace.robot.observability import _unseen
 
     chain, robot = arm
     F, nv = 120, robot.nv
@@ -363,7 +367,7 @@ def test_with_a_speed_decay_a_wrist_hidden_in_the_last_second_comes_to_rest(arm)
 
 
 def test_hidden_ends_table_counts_flipped_wrists_and_leaves_them_out_of_the_means():
-    from chainspace.benchmark_hidden_ends import format_hidden_ends
+    from chainspace.bench.hidden_ends import format_hidden_ends
 
     rows = [dict(trial=0, end="last", decay=None, worst_deg=176.0, error_mm=23.7),
             dict(trial=0, end="first", decay=None, worst_deg=7.0, error_mm=21.0),
@@ -379,8 +383,8 @@ def test_a_wrist_hidden_in_the_last_second_is_put_on_the_branch_nearest_rest():
     # half a turn with a5 mirrored puts every point in the same place, in every frame; of the two the
     # branch nearer the rest pose is reported. The choice used to hold the wrist's directions where they
     # were unseen, so it could not turn the whole path and kept the far branch (176 degrees worst joint).
-    from chainspace.benchmark_robots import trial_errors
-    from chainspace.benchmark_robustness import TOOL_MARKER
+    from chainspace.bench.robots import trial_errors
+    from chainspace.bench.robustness import TOOL_MARKER
 
     chain = from_urdf(ROBOTS / "milling_arm.urdf", extra_frames=TOOL_MARKER)
     trial = synthesize(chain, n_frames=90, noise_px=2.0, seed=100)
@@ -402,8 +406,8 @@ def test_point_jacobians_are_pinocchios_frame_jacobians(name):
     point, on branched trees, continuous joints and an extra frame."""
     import pinocchio as pin
 
-    from chainspace.benchmark_robustness import TOOL_MARKER
-    from chainspace.descriptions import example_robot_urdf
+    from chainspace.bench.robustness import TOOL_MARKER
+    from chainspace.io.descriptions import example_robot_urdf
 
     if name == "milling_arm":
         urdf = ROBOTS / "milling_arm.urdf"
@@ -432,7 +436,8 @@ def test_turned_views_show_the_motion_as_the_view_shows_it_turned_about_the_firs
     """The smoothed search also starts from views turned about a gauge joint's axis: each turned view
     must show the unchanged motion exactly as the original view shows the robot turned by that joint,
     so only the camera's azimuth differs between the starts."""
-    from chainspace.fit import _rotvec, _turned_views, _View
+    from chainspace.robot.views import _rotvec, _View
+    from chainspace.robot.candidates import _turned_views
 
     chain, robot = arm
     rng = np.random.default_rng(3)

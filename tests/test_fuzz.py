@@ -328,7 +328,7 @@ def check_chain(chain: KinematicChain | None) -> None:
 def test_seeds_are_valid(tmp_path):
     """The seeds load: a fuzz failure then means the edit broke something, not the seed."""
     from chainspace import from_asf, from_bvh, from_skeleton_file, from_urdf, load_amc, load_bvh
-    from chainspace.tracks import load_tracks
+    from chainspace.io.tracks import load_tracks
 
     assert from_urdf(write(tmp_path, "s.urdf", URDF_SEED)).n_joints == 4
     chain = from_asf(write(tmp_path, "s.asf", ASF_SEED))
@@ -457,7 +457,7 @@ def test_fuzz_urdf_options(tmp_path, links, extra, q):
 @FUZZ
 @given(text=mutated(CSV_SEED))
 def test_fuzz_tracks_csv(tmp_path, text):
-    from chainspace.tracks import load_tracks
+    from chainspace.io.tracks import load_tracks
 
     got = only_chainspace_errors(load_tracks, write(tmp_path, "f.csv", text))
     if got is not None:
@@ -469,7 +469,7 @@ def test_fuzz_tracks_csv(tmp_path, text):
 @FUZZ
 @given(text=mutated(COCO_SEED))
 def test_fuzz_tracks_coco_json(tmp_path, text):
-    from chainspace.tracks import load_tracks
+    from chainspace.io.tracks import load_tracks
 
     got = only_chainspace_errors(load_tracks, write(tmp_path, "f.json", text))
     if got is not None:
@@ -539,7 +539,7 @@ def track_arrays(draw):
 @given(W=track_arrays(), conf=st.sampled_from([None, None, "uniform", "nan", "out_of_range", "wrong_shape"]),
        method=st.sampled_from(["default", "kcs", "rigid"]), seed=st.integers(0, 1000))
 def test_fuzz_reconstruct_tracks(W, conf, method, seed):
-    from chainspace.reconstruction import reconstruct
+    from chainspace.reconstruction.pipeline import reconstruct
 
     rng = np.random.default_rng(seed)
     c = None
@@ -566,8 +566,8 @@ def test_fuzz_reconstruct_tracks(W, conf, method, seed):
        method=st.sampled_from(["default", "kcs"]))
 def test_fuzz_reconstruct_valid_options(max_iter, tol, n_basis, method):
     """Any valid solver option gives a finite result (invalid ones: BUGS.md #1, in test_bad_inputs)."""
-    from chainspace.reconstruction import reconstruct
-    from chainspace.synthetic import observe, orbit_cameras, swing_motion
+    from chainspace.reconstruction.pipeline import reconstruct
+    from chainspace.synthetic.views import observe, orbit_cameras, swing_motion
 
     X = swing_motion(CHAIN, 12, seed=1)
     W = observe(X, orbit_cameras(12, scale=200.0, sweep_deg=40, seed=2))

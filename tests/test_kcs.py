@@ -1,9 +1,9 @@
 import numpy as np
 
-from chainspace.datasets import human17
-from chainspace.kcs import kcs_factorize
+from chainspace.io.datasets import human17
+from chainspace.reconstruction.kcs import kcs_factorize
 from chainspace.metrics import error_3d
-from chainspace.synthetic import observe, orbit_cameras, swing_motion
+from chainspace.synthetic.views import observe, orbit_cameras, swing_motion
 
 
 def _case(noise=0.0, F=90, seed=0):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from chainspace.errors import OutputExistsError, TrackError
-from chainspace.plots import plot_convergence, plot_error_sweep, plot_joint_angles, plot_joint_errors
+from chainspace.view.plots import plot_convergence, plot_error_sweep, plot_joint_angles, plot_joint_errors
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

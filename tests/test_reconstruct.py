@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from chainspace import ConvergenceWarning, KinematicChain, TrackError
-from chainspace.reconstruction import Reconstruction, reconstruct
-from chainspace.datasets import human17
+from chainspace.reconstruction.pipeline import Reconstruction, reconstruct
+from chainspace.io.datasets import human17
 from chainspace.metrics import error_3d
-from chainspace.synthetic import observe, orbit_cameras, swing_motion
+from chainspace.synthetic.views import observe, orbit_cameras, swing_motion
 
 
 @pytest.fixture(scope="module")
@@ -145,8 +145,8 @@ def test_non_convergence_is_flagged_and_warned(chain):
 
 def test_real_walk_beats_the_initial_pose_and_kcs(chain):
     """Bundled CMU walk 35_01 (not the rest pose's subjects), one low-motion camera path, 2 px noise."""
-    from chainspace.datasets import cmu_walk
-    from chainspace.synthetic import scale_for_span
+    from chainspace.io.datasets import cmu_walk
+    from chainspace.synthetic.views import scale_for_span
 
     X = cmu_walk(35, 1)
     P = orbit_cameras(len(X), scale=scale_for_span(X, 720.0), seed=7)
@@ -158,7 +158,7 @@ def test_real_walk_beats_the_initial_pose_and_kcs(chain):
 
 
 def test_benchmark_table_format():
-    from chainspace.benchmark import Row, format_table
+    from chainspace.bench.reconstruction import Row, format_table
 
     table = format_table([Row("walk35", 2.0, 4, {"chainspace default": (0.0201, 0.0195, 0.3)})])
     assert "| walk35 | 2 | 4 |" in table and "20.1 / 19.5 (0.30 s)" in table

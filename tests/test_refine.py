@@ -1,10 +1,10 @@
 import numpy as np
 import pytest
 
-from chainspace.datasets import human17
-from chainspace.kcs import bone_observations, kcs_factorize
-from chainspace.refine import refine_bones
-from chainspace.synthetic import observe, orbit_cameras, swing_motion
+from chainspace.io.datasets import human17
+from chainspace.reconstruction.kcs import bone_observations, kcs_factorize
+from chainspace.reconstruction.refine import refine_bones
+from chainspace.synthetic.views import observe, orbit_cameras, swing_motion
 
 
 def _setup(noise=0.0, F=80, seed=0):
@@ -37,7 +37,7 @@ def test_never_starts_worse_than_the_initial_pose():
     bad = x0 + 5.0  # a terrible "KCS" start
     r = refine_bones(Wb, wb, s, prior, bad, max_iter=3)
     assert r.start != "kcs"
-    from chainspace.refine import _Problem, _energy, _best_lengths  # the same objective
+    from chainspace.reconstruction.refine import _Problem, _energy, _best_lengths  # the same objective
     pb = _Problem(Wb, wb, s, prior, float(np.median(s)) ** 2, 10.0, 4.0, 1e-3, r.history["delta"][0])
     assert r.history["objective"][-1] <= _energy(pb, prior, _best_lengths(prior)).sum() + 1e-9
 
@@ -59,7 +59,7 @@ def test_viterbi_signs_are_the_exact_minimiser(F):
     """The blocked min-plus Viterbi equals brute force over all 2^F sign sequences."""
     import itertools
 
-    from chainspace.refine import _viterbi
+    from chainspace.reconstruction.refine import _viterbi
 
     rng = np.random.default_rng(F)
     n, k_acc = 3, 2.0

@@ -10,7 +10,7 @@ import pytest
 
 from chainspace.chain import KinematicChain
 from chainspace.errors import ChainspaceError, OutputExistsError
-from chainspace.results import atomic_write, load_results, save_results
+from chainspace.io.results import atomic_write, load_results, save_results
 
 
 def _chain() -> KinematicChain:
@@ -117,9 +117,9 @@ def test_save_results_rejects_unknown_objects(tmp_path):
 
 
 def test_real_reconstruction_round_trip(tmp_path):
-    rec_mod = pytest.importorskip("chainspace.reconstruction")
-    datasets = pytest.importorskip("chainspace.datasets")
-    synthetic = pytest.importorskip("chainspace.synthetic")
+    rec_mod = pytest.importorskip("chainspace.reconstruction.pipeline")
+    datasets = pytest.importorskip("chainspace.io.datasets")
+    synthetic = pytest.importorskip("chainspace.synthetic.views")
     chain, poses = datasets.human17(), datasets.cmu_walk(35, 1)[:40]
     tracks = synthetic.observe(poses, synthetic.orbit_cameras(len(poses), seed=1, scale=300.0), seed=2)
     rec = rec_mod.reconstruct(tracks, chain, truth=poses, seed=0)

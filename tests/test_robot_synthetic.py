@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from chainspace.errors import ChainspaceError
-from chainspace.fit import RobotKinematics
-from chainspace.robot_synthetic import synthesize
-from chainspace.urdf import from_urdf
+from chainspace.robot.kinematics import RobotKinematics
+from chainspace.synthetic.robot import synthesize
+from chainspace.io.urdf import from_urdf
 
 URDF = Path(__file__).resolve().parents[1] / "robots" / "milling_arm.urdf"
 

@@ -164,7 +164,7 @@ def test_bad_yaml_and_files(tmp_path):
 # ------------------------------------------------------------------------------------------ fuzzing
 def _fuzz_loaders(tmp_path_factory):
     from chainspace import from_asf, load_bvh
-    from chainspace.datasets import bundled_data_dir
+    from chainspace.io.datasets import bundled_data_dir
 
     arm = (Path(__file__).parent / "test_bvh.py").read_text().split('ARM = """', 1)[1].split('"""', 1)[0]
     return {

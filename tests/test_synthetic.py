@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from chainspace import KinematicChain, TrackError
-from chainspace.synthetic import observe, orbit_cameras, scale_for_span, swing_motion
+from chainspace.synthetic.views import observe, orbit_cameras, scale_for_span, swing_motion
 
 
 @pytest.mark.parametrize("up", ["z", "y"])

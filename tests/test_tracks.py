@@ -9,7 +9,7 @@ import pytest
 
 from chainspace.chain import KinematicChain
 from chainspace.errors import ChainspaceError, OutputExistsError, TrackError
-from chainspace.tracks import BODY_25, COCO17, COCO18, MEDIAPIPE33, load_tracks, save_tracks
+from chainspace.io.tracks import BODY_25, COCO17, COCO18, MEDIAPIPE33, load_tracks, save_tracks
 
 HUMAN17 = ["pelvis", "left_hip", "left_knee", "left_ankle", "right_hip", "right_knee", "right_ankle", "spine",
            "thorax", "neck", "head", "left_shoulder", "left_elbow", "left_wrist", "right_shoulder",

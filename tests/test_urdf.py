@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from chainspace.errors import ChainspaceError, DescriptionError, DescriptionNotFoundError
-from chainspace.urdf import from_urdf, pinocchio_model, point_positions
+from chainspace.io.urdf import from_urdf, pinocchio_model, point_positions
 
 EXAMPLES = ["ur3", "ur5", "ur10", "panda", "xarm7", "kinova", "talos_arm", "z1", "so100", "so101",
             "baxter", "a1", "go1", "solo12"]

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from chainspace.errors import ChainspaceError
-from chainspace.fit import fit_joint_angles
-from chainspace.robot_synthetic import synthesize
-from chainspace.urdf import from_urdf
-from chainspace.validation import validate
+from chainspace.robot.fit import fit_joint_angles
+from chainspace.synthetic.robot import synthesize
+from chainspace.io.urdf import from_urdf
+from chainspace.robot.validation import validate
 
 URDF = Path(__file__).resolve().parents[1] / "robots" / "milling_arm.urdf"
 

@@ -11,7 +11,7 @@ import pytest
 
 from chainspace.chain import KinematicChain
 from chainspace.errors import OutputExistsError, TrackError
-from chainspace.viewer import write_html
+from chainspace.view.viewer import write_html
 
 umsgpack = pytest.importorskip("umsgpack")
 
@@ -109,8 +109,8 @@ def test_reconstruction_is_turned_upright(tmp_path):
 
 def test_robot_fit_drives_the_urdf_geometry(tmp_path):
     pytest.importorskip("pinocchio")
-    descriptions = pytest.importorskip("chainspace.descriptions")
-    fit_mod = pytest.importorskip("chainspace.fit")
+    descriptions = pytest.importorskip("chainspace.io.descriptions")
+    fit_mod = pytest.importorskip("chainspace.robot.fit")
     chain = descriptions.shipped("milling_arm")
     robot = fit_mod.RobotKinematics(chain.metadata["urdf_path"], chain)
     F = 30
@@ -136,7 +136,7 @@ def test_robot_fit_drives_the_urdf_geometry(tmp_path):
 def test_live_viewer_serves_the_scene():
     import urllib.request
 
-    from chainspace.viewer import show
+    from chainspace.view.viewer import show
 
     vis = show(_poses(10), chain=_chain())
     try:

@@ -3,7 +3,7 @@
 Subject 35 is left out on purpose: the benchmark evaluates its walks, and the initial pose must not
 come from the evaluated subject.
 
-Steps (all Z-up metres, via chainspace.datasets):
+Steps (all Z-up metres, via chainspace.io.datasets):
 1. every walk trial of subjects 02, 07, 16 in ../shared/data/cmu -> human17 poses (F, 17, 3);
 2. each frame root-centred (pelvis at the origin) and turned about the vertical so that the body faces
    +x, the facing taken from the hips (left hip - right hip, horizontal, points to +y);
@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from chainspace.chain import KinematicChain
-from chainspace.datasets import HUMAN17_BONES, HUMAN17_JOINTS, cmu_positions, cmu_to_human17, cmu_trials
-from chainspace.skeleton_file import save_skeleton_file
+from chainspace.io.datasets import HUMAN17_BONES, HUMAN17_JOINTS, cmu_positions, cmu_to_human17, cmu_trials
+from chainspace.io.skeleton_file import save_skeleton_file
 
 SUBJECTS = ("02", "07", "16")
 OUT = Path(__file__).resolve().parents[1] / "robots" / "human17.toml"
@@ -86,12 +86,12 @@ def main() -> None:
         "Human 17-joint skeleton (H36M-style joint set), Z-up metres, facing +x, pelvis at the origin. "
         "Rest pose: mean pose of the CMU walks of subjects 02, 07 and 16 (" + ", ".join(used) + "), "
         "root-centred and turned to face +x per frame, bone lengths = mean bone lengths, made left/right "
-        "symmetric; derived by tools/make_human17_rest.py. CMU points: see chainspace.datasets."
+        "symmetric; derived by tools/make_human17_rest.py. CMU points: see chainspace.io.datasets."
     )
     src = ("CMU Graphics Lab Motion Capture Database, http://mocap.cs.cmu.edu (created with funding from "
            "NSF EIA-0196217)")
     if "--check" in sys.argv:
-        from chainspace.skeleton_file import from_skeleton_file
+        from chainspace.io.skeleton_file import from_skeleton_file
 
         old = from_skeleton_file(OUT).rest_pose
         print("max difference to the shipped file (m):", np.abs(old - chain.rest_pose).max())

@@ -31,8 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from .chain import KinematicChain
-from .errors import DescriptionError, DescriptionNotFoundError, located
+from ..chain import KinematicChain
+from ..errors import DescriptionError, DescriptionNotFoundError, located
 
 __all__ = ["from_urdf", "pinocchio_model", "point_positions"]
 

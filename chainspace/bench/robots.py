@@ -29,7 +29,7 @@ __all__ = ["ROBOTS", "robot_chain", "run_robot_benchmark", "format_robot_table",
 # (a gripper's fingers are rarely trackable), which leaves its flange joint unobservable. The two
 # 7-axis arms have a ball-like shoulder whose centre and first axis carry every base point: the arm
 # beyond it then has an exact depth mirror under weak perspective (fitting every track alike), so
-# they also track a marker on the first link's housing, off its axis (see chainspace.fit's docstring).
+# they also track a marker on the first link's housing, off its axis (see chainspace.robot.fit's docstring).
 ROBOTS: dict[str, dict[str, Any]] = {
     "milling arm": {"urdf": "milling_arm", "links": None},
     "UR10": {"urdf": "ur10", "links": None},
@@ -47,8 +47,8 @@ CONDITIONS = [("static", 0.0), ("static", 1.0), ("static", 3.0), ("per-frame", 1
 
 def robot_chain(name: str):
     """The chain of benchmark robot ``name`` (a key of :data:`ROBOTS`)."""
-    from .descriptions import example_robot_urdf, shipped_path
-    from .urdf import from_urdf
+    from ..io.descriptions import example_robot_urdf, shipped_path
+    from ..io.urdf import from_urdf
 
     spec = ROBOTS[name]
     path = shipped_path(spec["urdf"]) if spec["urdf"] == "milling_arm" else example_robot_urdf(spec["urdf"])
@@ -57,7 +57,7 @@ def robot_chain(name: str):
 
 def trial_errors(fit: Any, trial: Any) -> tuple[float, float]:
     """(worst per-joint RMS degrees over judged joints, mean 3D error of the fitted robot in metres)."""
-    from .validation import validate
+    from ..robot.validation import validate
 
     rep = validate(fit, trial.q, truth_positions=trial.positions)
     judged = [j["rms"] for j in rep.joints if j["judged"] and j["rms"] is not None]
@@ -73,9 +73,10 @@ def run_robot_benchmark(quick: bool = False, progress: Callable[[str], None] | N
     mean over seeds), joint_rms_deg_max (worst seed), error_3d_mm, error_3d_pct, fps, reach_mm,
     n_frames, seeds, unobservable (joint names).
     """
-    from .fit import RobotKinematics, fit_joint_angles
-    from .reconstruction import reconstruct
-    from .robot_synthetic import synthesize
+    from ..robot.kinematics import RobotKinematics
+    from ..robot.fit import fit_joint_angles
+    from ..reconstruction.pipeline import reconstruct
+    from ..synthetic.robot import synthesize
 
     n_frames = n_frames or (100 if quick else 300)
     seeds = seeds or (1 if quick else 3)

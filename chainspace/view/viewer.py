@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from .errors import TrackError
-from .results import atomic_write
+from ..errors import TrackError
+from ..io.results import atomic_write
 
 __all__ = ["write_html", "show", "build_scene", "upright_poses"]
 
@@ -269,7 +269,7 @@ def build_scene(vis: Any, rec_or_poses: Any = None, *, chain: Any = None, truth:
                 fps: float = 30.0) -> Any:
     """Draw everything into meshcat visualizer ``vis`` and set the animation; return the Animation.
 
-    ``rec_or_poses`` is a Reconstruction (or what :func:`chainspace.results.load_results` returns) or
+    ``rec_or_poses`` is a Reconstruction (or what :func:`chainspace.io.results.load_results` returns) or
     poses (F, J, 3) m with ``chain``. ``truth`` (F, J, 3) m is drawn beside it. ``fit`` (a JointFit)
     draws the robot from its URDF driven by ``fit.q``, with the reconstructed points (mapped into the
     robot's base frame by the fit's similarity) over it; ``truth`` is then in the base frame.
@@ -366,7 +366,7 @@ def write_html(path: str | os.PathLike, rec_or_poses: Any = None, *, chain: Any 
     The file holds meshcat's JavaScript and the scene; a browser opens it from disk with no server and
     no network. Written atomically; an existing file is replaced only with ``overwrite=True``.
     """
-    from .results import check_writable
+    from ..io.results import check_writable
 
     check_writable([path], overwrite)
     vis = _offline_visualizer()

@@ -32,8 +32,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from .chain import KinematicChain
-from .errors import DescriptionError, DescriptionNotFoundError, OutputExistsError, located
+from ..chain import KinematicChain
+from ..errors import DescriptionError, DescriptionNotFoundError, OutputExistsError, located
 from .results import atomic_write
 
 __all__ = ["from_skeleton_file", "save_skeleton_file", "UNITS"]

@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import DescriptionNotFoundError, TrackError, located
+from ..errors import DescriptionNotFoundError, TrackError, located
 from .results import atomic_write, check_writable
 
 __all__ = ["load_tracks", "save_tracks", "map_to_chain", "FORMATS", "COCO17", "COCO18", "BODY_25",

@@ -39,8 +39,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .asf import from_asf, load_amc
-from .chain import KinematicChain
-from .errors import DescriptionError, DescriptionNotFoundError, TrackError
+from ..chain import KinematicChain
+from ..errors import DescriptionError, DescriptionNotFoundError, TrackError
 
 __all__ = [
     "HUMAN17_JOINTS",
@@ -99,7 +99,7 @@ def shared_data_dir() -> Path | None:
     """The shared real-data folder: ``$CHAINSPACE_DATA``, else ``../shared/data`` beside the repo."""
     env = os.environ.get("CHAINSPACE_DATA")
     candidates = [Path(env)] if env else []
-    candidates.append(Path(__file__).resolve().parents[1].parent / "shared" / "data")
+    candidates.append(Path(__file__).resolve().parents[2].parent / "shared" / "data")
     return next((p for p in candidates if p.is_dir()), None)
 
 
@@ -374,7 +374,7 @@ def laikago_gait() -> tuple[KinematicChain, np.ndarray]:
     "motor" angles for PyBullet's ``laikago/laikago.urdf`` (a Y-up model that the base orientation
     turns into PyBullet's Z-up world). URDF angle = direction * angle + offset, with the directions
     and offsets of bullet3's ``deep_mimic/env/testLaikago.py``. The chain is
-    :func:`chainspace.urdf.from_urdf` of that URDF plus a toe point per leg (``toeFR`` ... at
+    :func:`chainspace.io.urdf.from_urdf` of that URDF plus a toe point per leg (``toeFR`` ... at
     (0, -0.25, -0.022) m in the lower-leg frame, as in PyBullet's ``laikago_toes.urdf``); positions
     are Pinocchio's forward kinematics of the chain's frames, moved by the base pose. PyBullet's base
     pose is that of the chassis' centre of mass (0.03 m and 0.044 m off the chassis frame), which is

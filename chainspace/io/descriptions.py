@@ -16,8 +16,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from .chain import KinematicChain
-from .errors import ChainspaceError, DescriptionError, DescriptionNotFoundError
+from ..chain import KinematicChain
+from ..errors import ChainspaceError, DescriptionError, DescriptionNotFoundError
 
 __all__ = ["load_chain", "shipped", "shipped_path", "list_shipped", "example_robot_urdf", "EXAMPLE_ROBOTS"]
 

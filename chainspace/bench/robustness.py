@@ -3,7 +3,7 @@
 Sweeps, each on the same sequences, cameras and noise draws, so that only the swept quantity changes:
 
 * ``noise``: Gaussian pixel noise 0 to 10 px on an image 900 px tall (the subject spans 720 px, as in
-  :mod:`chainspace.benchmark`), no missing points;
+  :mod:`chainspace.bench.reconstruction`), no missing points;
 * ``random``: 0 to 50 % of the points missing, chosen independently (a detector's dropouts), at
   ``base_noise_px`` of noise;
 * ``limb``: whole limbs hidden for about a second at a time (an arm behind the body, the wrist behind
@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import ChainspaceError
+from ..errors import ChainspaceError
 
 __all__ = ["NOISE_LEVELS", "MISSING_LEVELS", "SWEEPS", "TOOL_MARKER", "run_robustness", "format_robustness", "check_targets",
            "find_cliffs", "CLIFF_RULE", "plot_robustness", "hide_random", "hide_limbs", "limb_groups"]
@@ -76,7 +76,7 @@ CLIFF_RULE = (f"Cliff: a step between neighbouring levels where the error rises 
 # The arm's other tool points (wrist centre, flange, spindle nose, tool tip) lie in one plane through the
 # wrist centre; that plane mirrored in depth is again a pose of the wrist, in every frame, and a path can
 # pass to the mirrored branch where the camera sees the plane face-on, at any noise level (see
-# chainspace.fit). The sweeps measure noise and missing data, so the arm is tracked as a user settling
+# chainspace.robot.fit). The sweeps measure noise and missing data, so the arm is tracked as a user settling
 # that ambiguity would track it; ``tool_marker=False`` measures the plane alone.
 TOOL_MARKER = {"tool_marker": ("spindle", [0.0, 0.08, 0.0])}
 _HUMAN_LIMBS = (("left_shoulder", "left_elbow", "left_wrist"), ("right_shoulder", "right_elbow", "right_wrist"),
@@ -152,7 +152,7 @@ def _masked(tracks: np.ndarray, hidden: np.ndarray) -> np.ndarray:
 
 # ------------------------------------------------------------------------------------------ datasets
 def _walks(quick: bool) -> list[np.ndarray]:
-    from . import datasets
+    from ..io import datasets
 
     trials = datasets.cmu_trials(35)
     names = [amc.stem.split("_")[1] for _, amc in trials] or ["01", "02"]
@@ -166,14 +166,14 @@ def _walks(quick: bool) -> list[np.ndarray]:
 
 
 def _walk_runs(quick: bool, n_cameras: int) -> tuple[Any, list[tuple[str, np.ndarray, int]]]:
-    from . import datasets
+    from ..io import datasets
 
     chain = datasets.human17()
     return chain, [(f"35/{i}", X, cam) for i, X in enumerate(_walks(quick)) for cam in range(n_cameras)]
 
 
 def _observe_walk(X: np.ndarray, key: str, cam: int, noise_px: float) -> np.ndarray:
-    from .synthetic import observe, orbit_cameras, scale_for_span
+    from ..synthetic.views import observe, orbit_cameras, scale_for_span
 
     P = orbit_cameras(len(X), scale=scale_for_span(X, SPAN_PX), seed=_seed(key, cam))
     return observe(X, P, translations=np.array([IMAGE_HEIGHT_PX / 2] * 2), noise_px=noise_px,
@@ -181,7 +181,7 @@ def _observe_walk(X: np.ndarray, key: str, cam: int, noise_px: float) -> np.ndar
 
 
 def _reconstruct(W: np.ndarray, chain: Any) -> Any:
-    from .reconstruction import reconstruct
+    from ..reconstruction.pipeline import reconstruct
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -203,7 +203,7 @@ def _plan(quick: bool, base_noise: float, sweeps: Sequence[str]) -> list[tuple[s
 
 def _sweep_walk(quick: bool, n_cameras: int, base_noise: float, say: Callable[[str], None],
                 sweeps: Sequence[str] = SWEEPS) -> list[dict]:
-    from .metrics import error_3d
+    from ..metrics import error_3d
 
     chain, runs = _walk_runs(quick, n_cameras)
     if not runs:
@@ -242,12 +242,12 @@ def _sweep_walk(quick: bool, n_cameras: int, base_noise: float, say: Callable[[s
 def _sweep_arm(quick: bool, n_seeds: int, n_frames: int, base_noise: float,
                say: Callable[[str], None], trajectory: str = "random", sweeps: Sequence[str] = SWEEPS,
                tool_marker: bool = True) -> list[dict]:
-    from .benchmark_robots import trial_errors
-    from .descriptions import shipped_path
-    from .fit import fit_joint_angles
-    from .metrics import error_3d
-    from .robot_synthetic import synthesize
-    from .urdf import from_urdf
+    from .robots import trial_errors
+    from ..io.descriptions import shipped_path
+    from ..robot.fit import fit_joint_angles
+    from ..metrics import error_3d
+    from ..synthetic.robot import synthesize
+    from ..io.urdf import from_urdf
 
     chain = from_urdf(shipped_path("milling_arm"), extra_frames=TOOL_MARKER if tool_marker else None)
     groups = limb_groups(chain)
@@ -267,7 +267,7 @@ def _sweep_arm(quick: bool, n_seeds: int, n_frames: int, base_noise: float,
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    from .reconstruction import reconstruct
+                    from ..reconstruction.pipeline import reconstruct
 
                     rec = reconstruct(W, trial.chain, confidence=conf)
                     fit = fit_joint_angles(rec)
@@ -433,10 +433,10 @@ def format_robustness(rows: Sequence[dict]) -> str:
 
 def plot_robustness(rows: Sequence[dict], out_dir: Any, *, overwrite: bool = False) -> list[Any]:
     """Two plots in ``out_dir``: error against noise (per dataset) and error ratio against missing data
-    (per dataset and pattern). Uses :func:`chainspace.plots.plot_error_sweep`."""
+    (per dataset and pattern). Uses :func:`chainspace.view.plots.plot_error_sweep`."""
     from pathlib import Path
 
-    from .plots import plot_error_sweep
+    from ..view.plots import plot_error_sweep
 
     out = Path(out_dir)
     noise = [dict(dataset=r["dataset"], noise_px=r["noise_px"], error_mm=r["error_mm"])

@@ -5,9 +5,9 @@ in the target's folder, which is renamed over the target only once it is complet
 leaves the old file (or no file) in place, never half a file. An existing file is replaced only when
 ``overwrite=True`` (``--overwrite`` on the command line).
 
-:func:`save_results` writes a reconstruction (:class:`chainspace.reconstruction.Reconstruction`), a
-robot joint-angle fit (:class:`chainspace.fit.JointFit`) or a validation report
-(:class:`chainspace.validation.ValidationReport`) as
+:func:`save_results` writes a reconstruction (:class:`chainspace.reconstruction.pipeline.Reconstruction`), a
+robot joint-angle fit (:class:`chainspace.robot.fit.JointFit`) or a validation report
+(:class:`chainspace.robot.validation.ValidationReport`) as
 
 * ``<stem>.npz``: every array, loadable with :func:`load_results`;
 * ``<stem>.csv``: a table (3D joint positions ``frame,joint,x,y,z`` in metres, or the joint angles
@@ -32,7 +32,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from .errors import ChainspaceError, DescriptionNotFoundError, OutputExistsError, TrackError
+from ..errors import ChainspaceError, DescriptionNotFoundError, OutputExistsError, TrackError
 
 __all__ = ["atomic_write", "check_writable", "save_results", "load_results", "to_jsonable", "write_json"]
 
@@ -333,7 +333,7 @@ def save_results(obj: Any, out: str | os.PathLike, *, overwrite: bool = False,
 def _chain_from_arrays(data: dict[str, np.ndarray]) -> Any:
     if "joints" not in data:
         return None
-    from .chain import KinematicChain
+    from ..chain import KinematicChain
 
     rigid = [tuple(p) for p in data["rigid_links"].tolist()] if "rigid_links" in data else ()
     return KinematicChain(
@@ -351,9 +351,9 @@ def _rebuild(kind: str, data: dict[str, np.ndarray], summary: dict, chain: Any) 
     """The original dataclass (Reconstruction or JointFit) from saved fields, or None if unavailable."""
     try:
         if kind == "reconstruction":
-            from .reconstruction import Reconstruction as cls
+            from ..reconstruction.pipeline import Reconstruction as cls
         else:
-            from .fit import JointFit as cls
+            from ..robot.result import JointFit as cls
     except ImportError:
         return None
     kwargs: dict[str, Any] = {}
@@ -377,8 +377,8 @@ def _rebuild(kind: str, data: dict[str, np.ndarray], summary: dict, chain: Any) 
 def load_results(path: str | os.PathLike) -> Any:
     """Read an NPZ written by :func:`save_results` back (a folder holding one NPZ works too).
 
-    Returns the saved object, a :class:`~chainspace.reconstruction.Reconstruction` or a
-    :class:`~chainspace.fit.JointFit`, with its chain rebuilt from the saved joint and bone names
+    Returns the saved object, a :class:`~chainspace.reconstruction.pipeline.Reconstruction` or a
+    :class:`~chainspace.robot.fit.JointFit`, with its chain rebuilt from the saved joint and bone names
     and metadata (a URDF chain's ``q_rest`` and extra frames, as JSON: lists for arrays and tuples).
     Should the class be unavailable, a namespace with the same attributes plus ``kind`` is returned.
     """

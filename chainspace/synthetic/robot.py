@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from .chain import KinematicChain
-from .errors import DescriptionError, TrackError, is_real
-from .fit import RobotKinematics
+from ..chain import KinematicChain
+from ..errors import DescriptionError, TrackError, is_real
+from ..robot.kinematics import RobotKinematics
 
 __all__ = ["RobotTrial", "synthesize", "random_trajectory", "milling_trajectory"]
 
@@ -59,7 +59,7 @@ def _window(robot: RobotKinematics, margin: float = 0.1) -> tuple[np.ndarray, np
     """Per q entry the range a trajectory may use: the joint limits, but at most 72 degrees either side
     of the rest pose for revolute joints, less a margin at each end. Within it the fit's rule for
     discrete ambiguities (of two wrist configurations that put every tracked point in the same place,
-    the one nearer the rest pose; see :mod:`chainspace.fit`) picks the true one."""
+    the one nearer the rest pose; see :mod:`chainspace.robot.fit`) picks the true one."""
     span = 0.4 * np.pi
     lo = np.where(robot.limited, robot.lower, robot.q_rest - span)
     hi = np.where(robot.limited, robot.upper, robot.q_rest + span)
@@ -90,7 +90,7 @@ def conditioning(robot: RobotKinematics, q: np.ndarray, seen: np.ndarray | None 
     is seen. The first joint counts even where a turn of the whole robot imitates it: aligned with the
     third, the two trade angle freely, and the arm can pass on to a second branch that fits every
     tracked point alike (both turned half a turn, the second joint mirrored)."""
-    from .fit import _structural
+    from ..robot.observability import _structural
 
     seen = np.ones(robot.chain.n_joints, bool) if seen is None else seen
     blind, _ = _structural(robot, seen[None].astype(float))
@@ -302,7 +302,7 @@ def synthesize(
         raise TrackError(f"seed must be None, a non-negative integer or a numpy Generator, "
                          f"not {seed!r} ({e})") from None
     chain = _chain(urdf_or_chain)
-    from .synthetic import observe, orbit_cameras
+    from .views import observe, orbit_cameras
 
     robot = RobotKinematics(chain.metadata["urdf_path"], chain)
     q = (random_trajectory(robot, n_frames, fps, rng) if trajectory == "random"
@@ -336,6 +336,6 @@ def _chain(urdf_or_chain: Any) -> KinematicChain:
             raise DescriptionError(f"chain {urdf_or_chain.name!r} has no URDF (metadata['urdf_path']); make it "
                                    "with chainspace.from_urdf")
         return urdf_or_chain
-    from .urdf import from_urdf
+    from ..io.urdf import from_urdf
 
     return from_urdf(urdf_or_chain)

@@ -1,7 +1,7 @@
 """Figures with matplotlib: convergence, joint angles, per-joint errors, robustness sweeps.
 
 Every function writes one file, PNG or SVG by the path's suffix (PDF works too), through
-:func:`chainspace.results.atomic_write`, and returns its path. Figures are bare matplotlib Figures
+:func:`chainspace.io.results.atomic_write`, and returns its path. Figures are bare matplotlib Figures
 rendered by Agg: no screen, no pyplot state. Figures show millimetres and degrees; the inputs are SI (metres, radians).
 """
 
@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from .errors import TrackError
-from .results import atomic_write, check_writable
+from ..errors import TrackError
+from ..io.results import atomic_write, check_writable
 
 __all__ = ["plot_convergence", "plot_joint_angles", "plot_joint_errors", "plot_error_sweep"]
 

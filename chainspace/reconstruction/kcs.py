@@ -12,7 +12,7 @@ Symbols (per frame k, chain matrices from :class:`~chainspace.chain.KinematicCha
   ``B_k = A_k S + B0``.
 
 The algorithm starts from ``A = 0`` and alternates (a) the per-frame cameras that best map ``B_k`` to
-``W_k C`` (:func:`chainspace.camera.fit_cameras`) and (b) ``min ||A||_*  s.t.  W C = P (A S + B0)``.
+``W_k C`` (:func:`chainspace.cameras.weak.fit_cameras`) and (b) ``min ||A||_*  s.t.  W C = P (A S + B0)``.
 Step (b) is solved in its penalty form ``min tau ||A||_* + 1/2 sum_k ||(W_k C - P_k (A_k S + B0)) w_k||^2``
 by accelerated proximal gradient (FISTA; the proximal map of the nuclear norm is singular value
 thresholding, SVT). The penalty weight follows a continuation schedule: in the first pass ``tau``
@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from .camera import fit_cameras
+from ..cameras.weak import fit_cameras
 
 __all__ = ["kcs_factorize", "KCSResult", "bone_observations", "fit_translations", "reprojection_rms",
            "reprojection_with_translations"]

@@ -1,9 +1,9 @@
 """The benchmark protocol of Wandt et al. (2017, Table 1), extended, and its markdown table.
 
 Protocol. For every sequence of a group and every camera path (``n_cameras`` per sequence, seeded):
-a weak-perspective camera orbits the subject (:func:`chainspace.synthetic.orbit_cameras`: random
+a weak-perspective camera orbits the subject (:func:`chainspace.synthetic.views.orbit_cameras`: random
 start azimuth, 10 degree sweep, random elevation in [0, 30] degrees), the subject spans 720 px of an
-image 900 px tall (:func:`chainspace.synthetic.scale_for_span`), Gaussian pixel noise is added, and
+image 900 px tall (:func:`chainspace.synthetic.views.scale_for_span`), Gaussian pixel noise is added, and
 every method reconstructs from the tracks alone with the chain's shipped rest pose as the initial
 pose (for human17: the mean pose of CMU subjects 02, 07 and 16, never subject 35). The 3D error is
 the paper's: per-frame rigid Procrustes alignment, mean joint distance, mean over frames; the
@@ -12,7 +12,7 @@ similarity variant also aligns scale. Errors are averaged over sequences and cam
 Columns: the initial pose alone (the rest pose in every frame), the rigid Tomasi-Kanade
 factorization, the literal KCS (Algorithm 1), and chainspace's default pipeline.
 
-Robot rows are produced by :mod:`chainspace.benchmark_robots`; :func:`run_benchmark` accepts extra
+Robot rows are produced by :mod:`chainspace.bench.robots`; :func:`run_benchmark` accepts extra
 row producers (``extra=[callable(noise_levels, quick) -> list[Row]]``) and prints them in the same
 table.
 """
@@ -28,9 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from .errors import ChainspaceError
-from .metrics import error_3d
-from .synthetic import observe, orbit_cameras, scale_for_span
+from ..errors import ChainspaceError
+from ..metrics import error_3d
+from ..synthetic.views import observe, orbit_cameras, scale_for_span
 
 __all__ = ["Row", "sequence_groups", "evaluate_sequence", "run_benchmark", "format_table", "COLUMNS",
            "IMAGE_HEIGHT_PX", "SPAN_PX", "run_speed", "format_speed"]
@@ -58,7 +58,7 @@ def sequence_groups(names: Iterable[str] | None = None, *, quick: bool = False) 
     Groups: walk35 (CMU subject 35 walks), walks 02/07/16, run09 (CMU subject 09 runs), and the
     DeepMimic jump and cartwheel. ``quick`` keeps at most 3 sequences per group.
     """
-    from . import datasets
+    from ..io import datasets
 
     human = datasets.human17()
     want = list(names) if names else ["walk35", "walk 02/07/16", "run09", "jump (DeepMimic)", "cartwheel (DeepMimic)"]
@@ -97,7 +97,7 @@ def sequence_groups(names: Iterable[str] | None = None, *, quick: bool = False) 
 def evaluate_sequence(poses: np.ndarray, chain: Any, *, noise_px: float, seed: int,
                       columns: Sequence[str] = COLUMNS) -> dict[str, tuple[float, float, float]]:
     """Errors (rigid m, similarity m, seconds) of every column on one sequence and one camera path."""
-    from .reconstruction import reconstruct
+    from ..reconstruction.pipeline import reconstruct
 
     F = len(poses)
     P = orbit_cameras(F, scale=scale_for_span(poses, SPAN_PX), seed=seed)
@@ -180,14 +180,14 @@ def run_speed(sizes: Sequence[int] = (100, 1_000, 10_000, 100_000), *, quick: bo
               progress: Callable[[str], None] | None = None, min_time: float = 1.0) -> list[dict[str, float]]:
     """Seconds and frames/s of the KCS stage and of the default pipeline for each number of frames.
 
-    A human17 chain in smooth motion (:func:`chainspace.synthetic.swing_motion` at 120 Hz), a
+    A human17 chain in smooth motion (:func:`chainspace.synthetic.views.swing_motion` at 120 Hz), a
     low-motion orbit camera, 2 px noise. ``quick`` stops at 10,000 frames. Each method runs again
     until ``min_time`` seconds have passed (at least once) and the fastest run counts (wall clock,
     with its CPU time): on a shared machine the fastest run is the one least slowed by others.
     """
-    from .datasets import human17
-    from .reconstruction import reconstruct
-    from .synthetic import swing_motion
+    from ..io.datasets import human17
+    from ..reconstruction.pipeline import reconstruct
+    from ..synthetic.views import swing_motion
 
     def timed(W, chain, method):
         best, spent = None, 0.0

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import TrackError
+from ..errors import TrackError
 
 __all__ = ["orbit_cameras", "observe", "scale_for_span", "look_rotation", "swing_motion"]
 

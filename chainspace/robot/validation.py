@@ -1,6 +1,6 @@
 """Validation of a robot fit against known kinematics: joint errors, reprojection, bone lengths.
 
-:func:`validate` compares a :class:`~chainspace.fit.JointFit` with the true joint angles when they are
+:func:`validate` compares a :class:`~chainspace.robot.fit.JointFit` with the true joint angles when they are
 known (a synthetic check, a robot controller's log) and, always, with the robot's own description:
 the bone lengths of the reconstruction against the URDF's, and the reprojection error of the fitted
 robot. The report passes or fails against thresholds the user sets.
@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import DescriptionError, TrackError
+from ..errors import DescriptionError, TrackError
 
 __all__ = ["ValidationReport", "validate", "DEFAULT_THRESHOLDS"]
 
@@ -154,7 +154,7 @@ def validate(fit: Any, truth_q: Any = None, *, thresholds: dict[str, float] | No
         tp = robot.positions(tq) if truth_positions is None else np.asarray(truth_positions, float)
         if tp.shape != pos.shape:
             raise TrackError(f"truth_positions have shape {tp.shape}, expected {pos.shape}")
-        from .fit import similarity_align
+        from .views import similarity_align
 
         # the base frame is known up to the first joint's turn when that joint is relative: align rigidly
         _, R, t = similarity_align(pos, tp, scale=False)

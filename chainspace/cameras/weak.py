@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import TrackError
+from ..errors import TrackError
 
 __all__ = ["fit_cameras", "project", "camera_scale", "complete_rotation", "rodrigues", "smooth_scales"]
 

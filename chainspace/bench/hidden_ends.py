@@ -8,7 +8,7 @@ motion, 90 frames at 30 fps, 2 px noise, the tracked 3D positions and the tracks
 the wrist and tool points hidden for the first or the last second.
 
 Reported per setting of ``speed_decay_s``: the worst per-joint RMS error (degrees) and the 3D error of
-the fitted robot (mm), as :func:`chainspace.benchmark_robots.trial_errors` measures them. A run whose
+the fitted robot (mm), as :func:`chainspace.bench.robots.trial_errors` measures them. A run whose
 worst joint is off by more than 90 degrees has its wrist on the flipped branch (a4 + 180, a5 mirrored,
 a6 + 180: every tracked point in the same place), which the rest-pose rule settles, not the prior; it
 is counted and left out of the means.
@@ -37,12 +37,12 @@ def run_hidden_ends(quick: bool = False, progress: Callable[[str], None] | None 
                     hidden_frames: int = 30, noise_px: float = 2.0) -> list[dict[str, Any]]:
     """One row per trial, hidden end and decay: trial, end ("first"/"last"), decay, worst_deg, error_mm.
     ``quick``: 2 trials, else 8 (``n_trials``)."""
-    from .benchmark_robots import trial_errors
-    from .benchmark_robustness import TOOL_MARKER
-    from .descriptions import shipped_path
-    from .fit import fit_joint_angles
-    from .robot_synthetic import synthesize
-    from .urdf import from_urdf
+    from .robots import trial_errors
+    from .robustness import TOOL_MARKER
+    from ..io.descriptions import shipped_path
+    from ..robot.fit import fit_joint_angles
+    from ..synthetic.robot import synthesize
+    from ..io.urdf import from_urdf
 
     chain = from_urdf(shipped_path("milling_arm"), extra_frames=TOOL_MARKER)
     wrist = [chain.joint_index(n) for n in WRIST]

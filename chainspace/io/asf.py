@@ -9,7 +9,7 @@ Units and axes
     ASF lengths are inches times the ``:units length`` factor (CMU writes ``length 0.45``), so one
     file unit is ``0.0254 / length`` metres (CMU: 0.05644 m). Angles follow ``:units angle`` (ASF) and
     ``:DEGREES`` / ``:RADIANS`` (AMC). Positions keep the file's own axes: CMU is **Y-up**.
-    :mod:`chainspace.datasets` converts to chainspace's Z-up world.
+    :mod:`chainspace.io.datasets` converts to chainspace's Z-up world.
 
 Forward kinematics (Acclaim convention)
     Each bone has a rest ``direction`` (unit vector, world axes), a ``length`` and an ``axis``: three
@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .chain import KinematicChain
-from .errors import DescriptionError, DescriptionNotFoundError, located
+from ..chain import KinematicChain
+from ..errors import DescriptionError, DescriptionNotFoundError, located
 
 __all__ = ["from_asf", "load_amc", "read_asf", "AsfSkeleton", "AsfBone", "INCH"]
 

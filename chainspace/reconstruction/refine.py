@@ -24,7 +24,7 @@ for a bone hanging from a joint with a single child (a shin below a knee, a fore
 elbow) it is that bone turned by the smallest rotation taking the initial pose's parent bone onto
 the current parent bone ``x_k,parent``, so the prior keeps the bend of a knee or elbow relative to
 its parent rather than a global direction. The cameras are the KCS rotations with scales smoothed
-in time (:func:`chainspace.camera.smooth_scales`), fixed here.
+in time (:func:`chainspace.cameras.weak.smooth_scales`), fixed here.
 
 How. Block-coordinate descent, each block exact or safeguarded, so E never increases:
 

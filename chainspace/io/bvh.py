@@ -31,8 +31,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .chain import KinematicChain
-from .errors import DescriptionError, DescriptionNotFoundError, OutputExistsError, TrackError, located
+from ..chain import KinematicChain
+from ..errors import DescriptionError, DescriptionNotFoundError, OutputExistsError, TrackError, located
 from .results import atomic_write
 
 __all__ = ["from_bvh", "load_bvh", "save_bvh"]

@@ -3,10 +3,10 @@
 Methods
 -------
 ``"kcs"``
-    The paper's Algorithm 1 (:mod:`chainspace.kcs`): per-frame cameras and a nuclear-norm
+    The paper's Algorithm 1 (:mod:`chainspace.reconstruction.kcs`): per-frame cameras and a nuclear-norm
     minimal deformation of the initial pose in the Kinematic Chain Space.
 ``"default"``
-    ``"kcs"`` followed by the refinement of :mod:`chainspace.refine` (constant unknown bone lengths,
+    ``"kcs"`` followed by the refinement of :mod:`chainspace.reconstruction.refine` (constant unknown bone lengths,
     temporal continuity, robust data term, the initial pose as a weak prior on depth signs).
 ``"rigid"``
     The Tomasi-Kanade rigid factorization with a metric upgrade, as a baseline: one shape for all
@@ -27,12 +27,12 @@ from typing import Any
 
 import numpy as np
 
-from .camera import fit_cameras, smooth_scales
-from .chain import KinematicChain
-from .errors import ConvergenceWarning, TrackError, is_real
+from ..cameras.weak import fit_cameras, smooth_scales
+from ..chain import KinematicChain
+from ..errors import ConvergenceWarning, TrackError, is_real
 from .kcs import (bone_observations, fit_translations, kcs_factorize, reprojection_rms,
                   reprojection_with_translations)
-from .metrics import error_3d
+from ..metrics import error_3d
 from .refine import refine_bones
 
 __all__ = ["reconstruct", "Reconstruction", "METHODS", "MIN_FRAMES", "MIN_POINTS"]
@@ -256,7 +256,7 @@ def _rigid(W, c, chain, X0):
     shape = shape - shape[chain.joint_index(chain.root)]
     k = chain.bone_lengths(X0).sum() / max(chain.bone_lengths(shape).sum(), 1e-300)
     cands = [k * shape, k * shape * np.array([1.0, 1.0, -1.0])]
-    from .metrics import procrustes_align
+    from ..metrics import procrustes_align
     errs = [np.linalg.norm(procrustes_align(s_, X0) - X0, axis=-1).mean() for s_ in cands]
     shape = cands[int(np.argmin(errs))]
     poses = np.broadcast_to(shape, (F, J, 3)).copy()
@@ -340,7 +340,7 @@ def reconstruct(
         3K, the rank of the KCS pose basis (default min(J - 1, 15)).
     refine_options
         Weights of the refinement objective: lam_len, lam_smooth, lam_prior, delta (see
-        :func:`chainspace.refine.refine_bones`).
+        :func:`chainspace.reconstruction.refine.refine_bones`).
 
     Raises
     ------

@@ -1,0 +1,1 @@
+"""Camera models shared by every stage."""

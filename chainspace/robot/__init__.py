@@ -1,0 +1,1 @@
+"""Robots: joint angles fitted with Pinocchio and their validation."""

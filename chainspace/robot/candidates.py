@@ -1,0 +1,257 @@
+"""The other motions that fit the tracks alike: depth flips of planar parts, IK branches chosen
+by dynamic programming, branches after long gaps, views turned about the first joint.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .kinematics import RobotKinematics, _gauge_q, _held_q, _random_q, _seeded, _wrapped
+from .views import _View, _camera_view
+from .solver import _sequence_lm
+from .observability import _hold
+
+
+def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
+                      free: np.ndarray, sigma: float, n_random: int = 4, step: float = 0.1, free_step: float = 0.15,
+                      seed: int = 0) -> np.ndarray:
+    """The sequence's branch, chosen globally: per frame a few IK solutions under the fixed view(s)
+    (from the current path, the rest pose and random configurations, batched), then the path through
+    them with the lowest total cost by dynamic programming (Viterbi), as the reconstruction chooses
+    its depth signs.
+
+    A wrong branch in some frames (an elbow or wrist mirrored where the projections tie) is a local
+    minimum of the smooth sequence objective that no local step leaves; the choice here is global.
+    Cost: squared residuals over sigma^2 (pixel noise, D-space units) per frame, plus for a joint step
+    between consecutive frames longer than ``free_step`` (rad; 4.5 rad/s at 30 fps, more than robots
+    move) the excess squared over ``step``^2, plus a whisker of distance to the rest pose that decides
+    exact ties: a jump to another branch is costly, while of two continuous paths that fit alike
+    (a wrist's planar tool mirrored in depth) the one nearer the rest pose wins. Returns q (F, nq).
+    """
+    F, nq = q.shape
+    rng = np.random.default_rng(seed)
+    held_q = _held_q(robot, free)  # entries held in a frame keep their value in every start
+    rand = _random_q(robot, rng, n_random) if robot.euclidean else np.broadcast_to(robot.q_rest, (n_random, nq))
+    starts = [q, _seeded(robot, q, free), _seeded(robot, q, free, True)] + [np.where(held_q, q, r) for r in rand] + \
+        [np.where(held_q, q, m) for m in _depth_flips(robot, q, view, free)]
+    K = len(starts)
+    q0 = np.concatenate(starts)
+    idx = np.tile(np.arange(F), K)
+    qs, _, rn, _, _, _ = _sequence_lm(robot, q0, target[idx], w[idx], view.take(idx), free[idx],
+                                      np.zeros(4 + target.shape[-1], bool), 30, 1e-8, None)
+    qs = qs.reshape(K, F, nq)
+    data = (w[idx] * rn ** 2).sum(1).reshape(K, F) / max(sigma, 1e-12) ** 2
+    data += 0.05 * np.abs(_wrapped(robot, qs - robot.q_rest)).sum(-1)
+    back = np.zeros((F, K), int)
+    acc = data[:, 0].copy()
+    for f in range(1, F):  # a loop over frames: the recursion is sequential, each step is (K, K)
+        jump = np.linalg.norm(_wrapped(robot, qs[None, :, f] - qs[:, None, f - 1]), axis=-1)  # (from, to)
+        trans = (np.maximum(jump - free_step, 0.0) / step) ** 2
+        tot = acc[:, None] + trans
+        back[f] = np.argmin(tot, 0)
+        acc = tot[back[f], np.arange(K)] + data[:, f]
+    k = np.empty(F, int)
+    k[-1] = int(np.argmin(acc))
+    for f in range(F - 1, 0, -1):
+        k[f - 1] = back[f, k[f]]
+    return robot.continuous(qs[k, np.arange(F)])
+
+
+_LONG_GAP = 21  # frames: half a turn at the branch search's free step (0.15 rad per frame)
+
+
+def _held_runs(held: np.ndarray) -> np.ndarray:
+    """(F, n) length of the run of held frames that ends at each frame (0 where not held)."""
+    runs = np.zeros(held.shape, int)
+    runs[0] = held[0]
+    for f in range(1, len(held)):
+        runs[f] = (runs[f - 1] + 1) * held[f]
+    return runs
+
+
+def _across_long_gaps(robot: RobotKinematics, q: np.ndarray, tracks: np.ndarray, w: np.ndarray, view: _View,
+                      free: np.ndarray, sigma: float, min_gap: int, n_random: int = 24, seed: int = 0) -> list[np.ndarray]:
+    """Starts that bridge each long gap to another branch: where a direction is seen again after
+    ``min_gap`` or more frames unseen, the IK solutions of that frame (from random starts) that fit it
+    within 25 noise variances of the best, each joined to the last sighting by a straight line over
+    the gap. After such a gap the joint may come back on any branch, and the frame alone may fit a
+    wrong one as well as the true one."""
+    runs = _held_runs(~free)
+    back = np.flatnonzero(((runs[:-1] >= min_gap) & free[1:]).any(1)) + 1  # frames seen again
+    if not len(back):
+        return []
+    rng = np.random.default_rng(seed)
+    starts = []
+    for b in back[:4]:  # a few: each costs a batched IK of that frame and a smoothed fit per branch
+        idx = np.full(n_random + 1, b)
+        q0 = np.where(_held_q(robot, free[b]), q[b], np.vstack([q[b], _random_q(robot, rng, n_random)]))
+        qs, _, rn, _, _, _ = _sequence_lm(robot, q0, tracks[idx], w[idx], view.take(idx), free[idx],
+                                          np.zeros(4 + tracks.shape[-1], bool), 30, 1e-8, None)
+        sse = (w[b] * rn ** 2).sum(1)
+        kept: list[np.ndarray] = []
+        for k in np.argsort(sse):
+            if sse[k] > sse.min() + 25.0 * sigma ** 2:
+                break
+            if any(np.abs(_wrapped(robot, qs[k] - o)).max() < 0.05 for o in kept + [q[b]]):
+                continue
+            kept.append(qs[k])
+            bridged = robot.continuous(q.copy())
+            bridged[b] = robot.wrap_near(qs[k][None], bridged[b - 1])[0]
+            for v in np.flatnonzero(runs[b - 1] >= min_gap):
+                qi = robot.q_of_v[v]
+                a = b - runs[b - 1, v]
+                if qi >= 0 and a > 0:
+                    bridged[a:b, qi] = np.linspace(bridged[a - 1, qi], bridged[b, qi], b - a + 2)[1:-1]
+            starts.append(bridged)
+    return starts
+
+
+def _viterbi_reanchored(robot: RobotKinematics, q: np.ndarray, tracks: np.ndarray, w: np.ndarray, view: _View,
+                        free: np.ndarray, sigma: float, gauge: np.ndarray, per_frame: bool, blind: np.ndarray,
+                        unseen: np.ndarray) -> tuple[np.ndarray, _View]:
+    """:func:`_viterbi_branches` on the tracks with a static camera's gauge joint free in frame 0 too.
+
+    The gauge joint (seen only relative to frame 0) is held at rest in frame 0, and the camera turned
+    to match. If frame 0 started on a wrong branch, the camera was turned by that branch's error and
+    no pose of frame 0 with the held value fits: the frame is stuck however the others move. Here
+    frame 0 may take any value under the current camera; afterwards the whole sequence is shifted
+    back to rest in frame 0 and the camera re-fitted (in closed form) to the shifted motion.
+    Returns (q, view)."""
+    if per_frame or not gauge.any():
+        return _viterbi_branches(robot, q, tracks, w, view, free, sigma), view
+    free0 = free.copy()
+    free0[0] |= gauge & ~blind & ~unseen[0]
+    q_fix = _viterbi_branches(robot, q, tracks, w, view, free0, sigma)
+    if np.abs(_wrapped(robot, q_fix[0] - q[0])[_gauge_q(robot, gauge)]).max(initial=0.0) < 1e-9:
+        return q_fix, view
+    q_fix, _ = _hold(robot, q_fix, blind, gauge, False)
+    return q_fix, _camera_view(robot.positions(q_fix), tracks, w, False)
+
+
+def _mirrored_beyond(pos: np.ndarray, beyond: np.ndarray, centre: int, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points pos (F, J, 3) with those marked ``beyond`` (J,) mirrored in depth (the unit axis n (F, 3))
+    about the plane through point ``centre``, facing the camera; and their depths (F, n) before."""
+    depth = np.einsum("fjd,fd->fj", pos[:, beyond] - pos[:, centre, None], n)
+    out = pos.copy()
+    out[:, beyond] -= 2 * depth[..., None] * n[:, None]
+    return out, depth
+
+
+def _depth_flips(robot: RobotKinematics, q: np.ndarray, view: _View, free: np.ndarray) -> list[np.ndarray]:
+    """Starts on the other side of each link's depth ambiguity: per tree link, the configuration whose
+    points best match the current ones with that link and everything beyond it mirrored in depth
+    (about the plane through the link's parent point, facing the camera). A weak-perspective camera
+    sees both alike; the arm beyond a ball-like joint (a 7-axis arm's shoulder, a wrist) can often
+    take the mirrored pose exactly. Random starts rarely land in that basin. (F, nq) each."""
+    F = len(q)
+    pos = robot.positions(q)
+    n = view.R[view.cam_of][:, 2]  # (F, 3) the camera's depth axis in the base frame
+    index = {name: i for i, name in enumerate(robot.chain.joints)}
+    mirrored = []
+    for b, (parent, _) in enumerate(robot.chain.bones):
+        beyond = robot.chain.D[b] != 0
+        m, depth = _mirrored_beyond(pos, beyond, index[parent], n)
+        if np.abs(depth).max() < 1e-9:
+            continue
+        mirrored.append(m)
+    # also the same points reached with the joints from each one on started from either side of the
+    # rest pose: the other branches that put every point where it is (a wrist turned half a turn with
+    # the next joint mirrored)
+    partial = []
+    for k in np.flatnonzero(robot.revolute):
+        for other_side in (False, True):
+            start = q.copy()
+            start[:, k:] = _seeded(robot, q, free, other_side)[:, k:]
+            partial.append(start)
+    targets = [pos] * len(partial) + mirrored
+    starts = partial + [q] * len(mirrored)
+    K = len(targets)
+    eye = _View.identity(K * F)
+    qs = _sequence_lm(robot, np.concatenate(starts), np.concatenate(targets), np.ones((K * F, pos.shape[1])), eye,
+                      np.tile(free, (K, 1)), np.zeros(7, bool), 30, 1e-8, None)[0]
+    return list(qs.reshape(K, F, -1))
+
+
+FACE_ON_DEG = 15.0  # a plane within this angle of face-on is reported as seen face-on
+
+
+def _face_on_planes(robot: RobotKinematics, q: np.ndarray, depth: np.ndarray,
+                    max_angle: float = np.radians(FACE_ON_DEG)) -> list[tuple[str, list[str], np.ndarray]]:
+    """Planar parts whose depth mirror is a pose of the robot, seen nearly face-on.
+
+    For each link: when its parent point and every tracked point beyond it lie in one plane, and that
+    part mirrored in depth about the parent point is again a pose of the robot (reached by IK to a
+    thousandth of the reach in nine frames of ten), the frames where the plane's normal is within
+    ``max_angle`` (rad) of the camera's depth axis ``depth`` (F, 3). There the two branches meet and
+    the tracks cannot tell which one the motion continues on. Returns (parent point, the joints the
+    mirror turns, frame indices) per such part."""
+    F = len(q)
+    pos = robot.positions(q)
+    index = {name: i for i, name in enumerate(robot.chain.joints)}
+    reach = robot.reach()
+    eye = _View.identity(F)
+    found = []
+    for b, (parent, _) in enumerate(robot.chain.bones):
+        beyond = robot.chain.D[b] != 0
+        rel = pos[:, beyond] - pos[:, index[parent], None]  # (F, n, 3)
+        if rel.shape[1] < 2:
+            continue
+        _, sv, vt = np.linalg.svd(rel)
+        if sv[:, -1].max() > 1e-6 * reach or (sv[:, 1] < 0.05 * sv[:, 0]).any():
+            continue  # not a plane, or a line (a line's mirror is the axis's business)
+        mirrored = _mirrored_beyond(pos, beyond, index[parent], depth)[0]
+        q_m = _sequence_lm(robot, q, mirrored, np.ones(pos.shape[:2]), eye, np.ones((F, robot.nv), bool),
+                           np.zeros(7, bool), 30, 1e-10, None)[0]
+        reached = np.linalg.norm(robot.positions(q_m) - mirrored, axis=-1).max(1) < 1e-3 * reach
+        frames = np.flatnonzero(np.abs(np.einsum("fd,fd->f", vt[:, -1], depth)) > np.cos(max_angle))
+        if reached.mean() >= 0.9 and frames.size:
+            turned = np.abs(_wrapped(robot, q_m - q))[reached].max(0) > 1e-3
+            found.append((parent, [robot.joint_names[k] for k in np.flatnonzero(turned)], frames))
+    return found
+
+
+def _frame_ranges(frames: np.ndarray) -> str:
+    """'3-7, 12' for frames [3, 4, 5, 6, 7, 12]."""
+    breaks = np.flatnonzero(np.diff(frames) > 1)
+    starts, ends = np.r_[frames[0], frames[breaks + 1]], np.r_[frames[breaks], frames[-1]]
+    return ", ".join(f"{a}" if a == e else f"{a}-{e}" for a, e in zip(starts, ends))
+
+
+def _nearest_rest_branch(robot: RobotKinematics, q: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """The path that puts every point where q (F, nq) puts it, on the branch nearest the rest pose.
+
+    Tracked points on joint axes leave configurations that put every point in the same place (a wrist
+    turned half a turn with the next joint mirrored). No image can choose among them; this picks, by
+    the same dynamic programming as :func:`_viterbi_branches` on the 3D points (a continuous path,
+    then nearness to the rest pose), and changes no point by more than a thousandth of the reach.
+    Returns q itself when nothing changes."""
+    pos = robot.positions(q)
+    eye = _View.identity(len(q))
+    tol = 1e-3 * robot.reach()
+    alt = _viterbi_branches(robot, q, pos, np.ones(pos.shape[:2]), eye, free, 0.1 * tol, n_random=4)
+    moved = np.linalg.norm(robot.positions(alt) - pos, axis=-1).max()
+    if moved > tol or np.abs(_wrapped(robot, alt - q)).max() < 1e-3:
+        return q
+    return alt
+
+
+def _turned_views(robot: RobotKinematics, q: np.ndarray, view: _View, gauge: np.ndarray,
+                  turns: tuple[float, ...] = (0.5 * np.pi, np.pi, -0.5 * np.pi)) -> list[_View]:
+    """Views that show the motion q (F, nq) as ``view`` shows it turned by ``turns`` (radians) about
+    each gauge direction's axis (``gauge`` (nv,): for an arm on a floor, its first joint, whose turn
+    the camera's azimuth imitates): starts for the smoothed search with q itself, and the gauge held in
+    frame 0, as they are. Each view is fitted to the image of the turned robot.
+
+    Why: how far round its base the camera stands is a guess of the start, and the smoothed search
+    stays near the side it starts from; at 53 % hidden limbs a motion seen from below, with its first
+    joint wandering 60 degrees, beat every start seen from above, though a motion 13 mm from the truth,
+    found from a quarter turn, scores as well."""
+    pos = robot.positions(q)
+    views = []
+    for v in np.flatnonzero(gauge):
+        for turn in turns:
+            dv = np.zeros((len(q), robot.nv))
+            dv[:, v] = turn
+            image = view.apply(robot.positions(robot.integrate(q, dv, clip=False)))[0]  # a turn, not a pose
+            views.append(_camera_view(pos, image, np.ones(pos.shape[:2]), False))
+    return views

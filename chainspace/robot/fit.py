@@ -1,0 +1,521 @@
+"""Joint angles of a robot from its reconstructed 3D motion, refined straight on its 2D tracks.
+
+A chain made by :func:`chainspace.from_urdf` has one point per URDF link origin (plus tool frames);
+Pinocchio knows each of them as a frame. :func:`fit_joint_angles` finds, for every frame of a
+sequence, the joint angles ``q`` that put those frames where the points were seen:
+
+1. **3D fit.** A monocular reconstruction is known only up to a similarity (scale, rotation,
+   translation) and, under weak perspective, a depth mirror. One similarity ``X = s R x(q) + t`` for
+   the whole sequence is estimated with the joint angles: a start found by trying rotations spread
+   over SO(3) on a few frames; IK along the sequence warm-started from the previous frames; then
+   Umeyama's closed form alternated with per-frame damped Gauss-Newton (Levenberg-Marquardt) on
+   Pinocchio frame Jacobians; then all together. Joint limits are kept by projection. Both the poses
+   and their mirror image are fitted.
+2. **Model-based refinement** (default when 2D tracks are given): with the link lengths known from
+   the URDF, the joint angles and a weak-perspective camera ``u = s R[:2] x(q) + t2`` are fitted
+   straight to the tracks (reprojection error in pixels, confidence weights, a robust Huber loss,
+   NaN = not seen). By default one static camera for the whole sequence (a tripod in front of a robot
+   on a fixed base); ``camera="per-frame"`` gives each frame its own. The normal equations have one
+   block per frame plus the shared camera, which a Schur complement eliminates, so an iteration costs
+   one Pinocchio Jacobian pass over the frames and small batched solves. A prior on joint
+   accelerations (``accel_std``) then averages the pixel noise over neighbouring frames; its banded
+   system is solved by a banded Cholesky factorisation. Where no tracked point a joint moves is seen,
+   the prior alone carries the joint: between two sightings it bridges them smoothly, but before the
+   first or after the last one it would carry the joint on at its last speed for ever (a straight
+   ramp costs no acceleration). ``speed_decay_s`` also charges the joint's speed there, so that it
+   decays with that time constant and the joint comes to rest. Off by default: over a second unseen
+   neither guess wins on the benchmarks (README, robustness section; ``benchmarks/bench_hidden_ends.py``),
+   but over longer stretches at the ends a constant speed runs on to the joint limits.
+
+Ambiguities the tracks cannot settle, and the rules that settle them
+--------------------------------------------------------------------
+Under weak perspective several motions can put every tracked point on its track exactly. The fit
+generates them as candidates and, among those that fit alike (squared residuals within 25 noise
+variances of the best: a likelihood-ratio test), applies these rules:
+
+* *Mirror image.* A motion and its depth mirror project alike; for a robot built mirror-symmetric
+  (its tracked points in one vertical plane at rest, as on most industrial arms) the mirror is a
+  valid motion of the same robot, seen from the other side of its base plane. ``view_from="above"``
+  (default) keeps the one whose camera looks down on the base plane (or level). The mirror about the
+  robot's own symmetry plane, seen through a mirrored camera, is tried too. For a robot only nearly
+  symmetric (a tool marker off the plane), the wrong mirror image can fit the tracks slightly better
+  frame by frame, by moving less plausibly: with the acceleration prior on (the default) the
+  candidates are compared by the smoothed objective (robust residuals plus the prior), the mirror
+  image of the winner is smoothed and scored too, and the camera side decides only among those that
+  tie there; of those seen from that side, the motion that moves least is kept.
+* *Where the camera stands round the base.* With a static camera, a turn of the first joint looks
+  like a turn of the camera (the joint is reported relative to frame 0), so how far round the base
+  the camera stands is part of the start, and the smoothed search stays near the side it starts
+  from. With the upper arm hidden for most of a sequence, every start can meet a motion seen from
+  below with the first joint wandering; so the winner is also smoothed from views turned a quarter,
+  a half and three quarters about that joint's axis, and scored with the rest.
+* *Planar bodies on ball-like joints.* Where every tracked point beyond a joint group lies in one
+  plane with its centre (a spherical wrist carrying a planar tool; a 7-axis arm's spherical
+  shoulder), that part mirrored in depth about the centre is again a pose of the robot, in every
+  frame. Per frame the fit tries each link's depth flip, then chooses the path through all frames
+  by dynamic programming: a jump to another branch between frames costs, and of two continuous
+  paths that fit alike, the one nearer the rest pose is kept (joints within about 70 degrees of
+  their rest values come out right). Where the camera sees that plane nearly face-on the two
+  branches meet, its tilt in depth is seen only to second order, and a noisy path can leave on the
+  other branch (the shipped milling arm's tool roll, on some views). Nothing in the tracks or in
+  the smoothness of the motion tells the two apart there (the mirrored path is as smooth), so
+  ``fit.message`` names the plane, its joints and the frames within 15 degrees of face-on. Track a
+  point off the plane (``extra_frames={"tool_marker": ("spindle", [0, 0.08, 0])}``): the tilt is
+  then seen to first order.
+* *Ball-like shoulder with every base point on the first axis* (Panda, xArm7 and similar 7-axis
+  arms): the whole arm beyond the shoulder mirrors exactly, in every frame, and the rest-pose rule
+  picks wrongly as often as not. Track a point on the first link's housing, off its axis
+  (``extra_frames={"shoulder_marker": ("panda_link1", [0.08, 0, -0.1])}``); the benchmark does.
+* *Seen again after a long gap.* A joint unseen for long enough to turn half a circle at the branch
+  search's step bound (``_LONG_GAP`` frames), then seen again, may come back on any branch, and the
+  frame that sees it again may fit a wrong one as well as the true one (a wrist seen in one frame
+  after its tool was hidden for more than a second). The acceleration prior charges nothing for a
+  straight ramp across the gap, so every branch of that frame, bridged to the last sighting by a
+  straight line and smoothed, can score alike: of those that tie, the motion that moves least
+  (the sum of squared joint steps) is kept.
+* *Singularities.* Where two joint axes align (a wrist stretched straight; a 7-axis arm's upper arm
+  along its first axis) only the sum of their angles is seen, and a path may continue on either
+  branch. Nothing in the tracks can split them there; plan paths (and camera checks) away from them,
+  as :func:`chainspace.synthesize` does.
+
+Observability (the rule)
+------------------------
+A joint is observable when moving it moves some tracked point in a way no change of camera (or, in
+3D, of the similarity) can imitate. Two cases are detected from the stacked Jacobians of the tracked
+points and reported in ``fit.observable`` / ``fit.relative`` and ``fit.message``:
+
+* *No tracked point moves with the joint* (a last joint whose axis runs through the only tracked
+  point of its link; fingers of a gripper that is not tracked). The joint is held at its rest value
+  and marked unobservable.
+* *Its motion equals a motion of the camera*: the first joint turning about the base's vertical axis
+  when every tracked point of the base lies on that axis (everything it turns, turns with it, which a
+  turn of the camera imitates). A static camera sees it only relative to the
+  first frame: it is held at its rest value in frame 0 and fitted in every other frame
+  (``fit.relative[k]`` is True, ``fit.observable[k]`` False). With ``camera="per-frame"`` each
+  frame's camera absorbs it and it is held at its 3D-fit value.
+
+To make such a joint observable: for the first kind, track a point that moves with the joint, off its
+axis (a tool tip off the flange axis); for the second, a point fixed to the link the joint turns
+against, off the axis (a mark on the base plate). Give them to ``from_urdf`` as
+``extra_frames={"base_mark": ("base_link", [0.3, 0, 0]), "tool_tip": ("tool0", [0, 0.05, 0.2])}``.
+
+Conventions: ``fit.q`` is (F, nq) in the order of the Pinocchio model built from the same URDF
+(``pinocchio.buildModelFromUrdf``); lengths in metres, angles in radians, image coordinates in the
+units of the tracks (pixels). Cameras map points of the robot's base frame to the image.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+import numpy as np
+
+from ..chain import KinematicChain
+from ..errors import ConvergenceWarning, DescriptionError, TrackError, is_real
+from .kinematics import RobotKinematics, _rest_distance, _roughness, _wrapped
+from .result import JointFit
+from .views import _affine_camera, _align, _camera_view, _looks_down, similarity_align
+from .solver import _huber, _motion_prior, _noise_sigma, _rms_per_frame, _robust_scale, _sequence_lm
+from .starts import _fit_3d, _initial_camera, _sequential_ik
+from .observability import _fill_unseen, _gauge_directions, _hold, _notes, _structural, _unseen
+from .candidates import FACE_ON_DEG, _face_on_planes, _frame_ranges, _nearest_rest_branch, _viterbi_reanchored
+from .selection import _most_probable, _prefer_rest
+
+__all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"]
+
+
+def _positive(x: Any) -> bool:
+    return is_real(x) and x > 0
+
+
+def _inputs(rec_or_poses, urdf, chain, tracks, confidence):
+    """Unpack and check what the caller gave: (poses, chain, urdf path, tracks, confidence)."""
+    if hasattr(rec_or_poses, "poses"):
+        rec = rec_or_poses
+        poses = np.asarray(rec.poses, float)
+        chain = chain or getattr(rec, "chain", None)
+        if tracks is None:
+            tracks = getattr(rec, "tracks", None)
+            if confidence is None:
+                confidence = getattr(rec, "confidence", None)
+    else:
+        try:
+            poses = np.asarray(rec_or_poses, float)
+        except (TypeError, ValueError):
+            raise TrackError(f"fit_joint_angles needs a Reconstruction or poses (F, J, 3), got "
+                             f"{type(rec_or_poses).__name__}") from None
+    if urdf is None and chain is not None:
+        urdf = chain.metadata.get("urdf_path")
+    if urdf is None:
+        raise DescriptionError("fit_joint_angles needs the robot's URDF: pass urdf=PATH or a chain made by "
+                               "chainspace.from_urdf")
+    if chain is None:
+        from ..io.urdf import from_urdf
+
+        chain = from_urdf(urdf)
+    J = chain.n_joints
+    if poses.ndim == 2 and poses.shape == (J, 3):
+        poses = poses[None]
+    if poses.ndim != 3 or poses.shape[1:] != (J, 3):
+        raise TrackError(f"poses have shape {poses.shape}, expected (frames, {J}, 3) for {chain.name} "
+                         f"({', '.join(chain.joints[:4])}...)")
+    if len(poses) == 0:
+        raise TrackError("poses are empty: no frames to fit")
+    if np.isinf(poses).any():
+        f, j = np.argwhere(np.isinf(poses).any(-1))[0]
+        raise TrackError(f"poses contain inf at frame {f}, joint {chain.joints[j]!r}")
+    if tracks is not None:
+        tracks = np.asarray(tracks, float)
+        if tracks.shape != (len(poses), J, 2):
+            raise TrackError(f"tracks have shape {tracks.shape}, expected ({len(poses)}, {J}, 2) to match the "
+                             f"poses of {chain.name}")
+        if np.isinf(tracks).any():
+            f, j = np.argwhere(np.isinf(tracks).any(-1))[0]
+            raise TrackError(f"tracks contain inf at frame {f}, joint {chain.joints[j]!r}")
+    if confidence is not None:
+        confidence = np.asarray(confidence, float)
+        if confidence.shape != (len(poses), J):
+            raise TrackError(f"confidence has shape {confidence.shape}, expected ({len(poses)}, {J})")
+        if not np.isfinite(confidence).all() or (confidence < 0).any() or (confidence > 1).any():
+            raise TrackError("confidence must hold finite weights in [0, 1]")
+    return poses, chain, str(urdf), tracks, confidence
+
+
+def fit_joint_angles(
+    rec_or_poses: Any,
+    urdf: str | Path | None = None,
+    *,
+    chain: KinematicChain | None = None,
+    tracks: Any = None,
+    confidence: Any = None,
+    camera: str = "static",
+    refine: bool = True,
+    transform: str = "similarity",
+    max_iter: int = 100,
+    tol: float = 1e-6,
+    loss_scale_px: float | None = None,
+    mirror: bool = True,
+    view_from: str | None = "above",
+    fps: float = 30.0,
+    accel_std: float | None = 3.0,
+    speed_decay_s: float | None = None,
+) -> JointFit:
+    """Fit the robot's joint angles to a reconstruction (and its 2D tracks).
+
+    Parameters
+    ----------
+    rec_or_poses
+        A :class:`chainspace.Reconstruction` of a chain made by ``from_urdf`` (its tracks and
+        confidences are used), or 3D points (F, J, 3) in the chain's order (NaN = missing).
+    urdf
+        Path of the URDF; default ``chain.metadata["urdf_path"]``.
+    chain
+        The chain of the points; default the reconstruction's, else ``from_urdf(urdf)``.
+    tracks, confidence
+        2D tracks (F, J, 2) in pixels (NaN = not seen) and weights (F, J) in [0, 1]. With tracks and
+        ``refine=True`` the joint angles and the camera are refined on the reprojection error.
+    camera
+        ``"static"`` (one camera for all frames, the default for a robot filmed from a tripod) or
+        ``"per-frame"``.
+    transform
+        How the 3D points relate to the robot's base frame: ``"similarity"`` (a monocular
+        reconstruction: unknown scale, rotation, translation and mirror), ``"rigid"`` (metric points in
+        another frame) or ``"none"`` (points already in the base frame, metres: every joint that moves
+        a tracked point is then observable, the first one included).
+    max_iter, tol
+        Iteration cap of each Levenberg-Marquardt run and the relative cost decrease that stops it.
+    loss_scale_px
+        Huber threshold of the 2D loss in pixels; None: 3 robust standard deviations of the residuals
+        of the 3D fit's start; 0: plain least squares.
+    mirror
+        Also try the depth-mirrored poses (weak perspective cannot tell them apart) and keep the better.
+    fps, accel_std
+        Frame rate (1/s) and the prior on joint accelerations (rad/s^2, RMS): the 2D refinement adds
+        ``sum |q[f-1] - 2 q[f] + q[f+1]|^2`` weighted so that accelerations of ``accel_std`` cost as
+        much as pixel noise of the size of the residuals. Robots move smoothly; the prior averages the
+        noise over neighbouring frames (the wrist joints, seen through short links, gain most). None:
+        every frame on its own.
+    speed_decay_s
+        Before the first and after the last frame in which a point it moves is seen, a joint's speed
+        decays with this time constant (s), so that the joint comes to rest; None (default): it
+        carries on at its last speed, as the acceleration prior alone has it. Used with ``accel_std``.
+    view_from
+        ``"above"`` (default: the camera looks down on the robot's base plane, or level), ``"below"`` or
+        None. Under weak perspective a motion and its mirror image project alike; for a robot built
+        mirror-symmetric (most industrial arms) both are valid motions and fit equally well. The camera
+        side then decides (image y axis pointing down, as pixel rows do); None: the motion nearer the
+        rest pose.
+
+    Returns
+    -------
+    JointFit
+        ``observable``/``relative`` follow the rule in the module docstring; ``message`` names the
+        joints that are not (fully) observable and why.
+    """
+    if view_from not in ("above", "below", None):
+        raise DescriptionError(f"view_from must be 'above', 'below' or None, not {view_from!r}")
+    if accel_std is not None and not _positive(accel_std):
+        raise DescriptionError(f"accel_std must be a positive number of rad/s^2 or None, not {accel_std!r}")
+    if speed_decay_s is not None and not _positive(speed_decay_s):
+        raise DescriptionError(f"speed_decay_s must be a positive number of seconds or None, not {speed_decay_s!r}")
+    if not _positive(fps):
+        raise DescriptionError(f"fps must be positive, not {fps!r}")
+    if camera not in ("static", "per-frame"):
+        raise DescriptionError(f"camera must be 'static' or 'per-frame', not {camera!r}")
+    if transform not in ("similarity", "rigid", "none"):
+        raise DescriptionError(f"transform must be 'similarity', 'rigid' or 'none', not {transform!r}")
+    if not (isinstance(max_iter, (int, np.integer)) and max_iter > 0):
+        raise DescriptionError(f"max_iter must be a positive integer, not {max_iter!r}")
+    if not (is_real(tol) and tol >= 0):
+        raise DescriptionError(f"tol must be a finite number >= 0, not {tol!r}")
+    if loss_scale_px is not None and not (is_real(loss_scale_px) and loss_scale_px >= 0):
+        raise DescriptionError(f"loss_scale_px must be a finite number of pixels >= 0 or None, not {loss_scale_px!r}")
+    poses, chain, urdf, tracks, confidence = _inputs(rec_or_poses, urdf, chain, tracks, confidence)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    robot = RobotKinematics(urdf, chain)
+    F = len(poses)
+    per_frame = camera == "per-frame"
+    w3 = np.isfinite(poses).all(-1).astype(float) * (1.0 if confidence is None else confidence)
+    if not (w3 > 0).any():
+        raise TrackError("no point of any frame is usable (all NaN or zero confidence)")
+    Xz = np.nan_to_num(poses)
+
+    # ---- step 1: 3D, both mirror images. Blind directions are known before fitting.
+    blind, gauge0 = _structural(robot, w3)
+    unseen3 = _unseen(robot, w3)
+    _, free_blind = _hold(robot, np.broadcast_to(robot.q_rest, (F, robot.nq)), blind, blind & False, False,
+                          unseen3)
+    free_sim = np.array([transform != "none"] * 3 + [transform == "similarity"] + [transform != "none"] * 3)
+    candidates, n_iter = [], 0
+    for sign in ((1.0, -1.0) if mirror and transform == "similarity" else (1.0,)):
+        X = sign * Xz
+        q, view, n_iter_a = _fit_3d(robot, X, w3, free_blind, transform, max_iter, tol,
+                                    gauge0 if transform != "none" else blind & False)
+        gauge, free = np.zeros(robot.nv, bool), free_blind
+        if transform != "none":
+            pos, jac = robot.jacobians(q)
+            gauge = _gauge_directions(pos, jac, w3, None, False) & ~blind
+            q, free = _hold(robot, q, blind, gauge, False, unseen3)
+            view = _align(robot.positions(q), X, w3, transform)  # the hold turned the robot: turn the view back
+        q, view, rn, pos, conv, it = _sequence_lm(robot, q, X, w3, view, free, free_sim,
+                                                  max_iter if tracks is None or not refine else 10, tol, None)
+        n_iter += it + n_iter_a
+        candidates.append(dict(sign=sign, q=q, view=view, rms=float(np.sqrt((w3 * rn ** 2).sum() / w3.sum())),
+                               conv=conv, gauge=gauge, pos=pos))
+    candidates = _prefer_rest(robot, candidates, "rms", blind)
+    mirror_tied = len(candidates) > 1 and candidates[1]["rms"] <= 1.5 * candidates[0]["rms"] + 1e-12
+    best = candidates[0]
+    gauge = best["gauge"]
+    timings["fit_3d"] = time.perf_counter() - t0
+
+    # ---- step 2: refine on the tracks; both mirrors unless the 3D fit told them apart clearly
+    residual_px = cams = ts2 = None
+    smoothed = False  # by the acceleration prior, which also fills the frames where a direction is unseen
+    converged = best["conv"]
+    if refine and tracks is not None:
+        t1 = time.perf_counter()
+        w2 = np.isfinite(tracks).all(-1).astype(float) * (1.0 if confidence is None else confidence)
+        if (w2 > 0).sum() < 6:
+            raise TrackError(f"the tracks have {int((w2 > 0).sum())} usable points; the camera needs at least 6")
+        # image-size tolerance for exact data: a thousandth of the tracks' extent (0.8 px at 800 px)
+        px_floor = 1e-3 * float(max(np.ptp(tracks[..., 0][w2 > 0]), np.ptp(tracks[..., 1][w2 > 0])))
+        unseen2 = _unseen(robot, w2)
+        never2 = unseen2 & unseen2.all(0)
+
+        def robust_cost(rn):
+            return float((w2 * _huber(rn, delta_used[0])[0]).sum())
+
+        delta_used = [None]
+
+        def refine_2d(c):
+            nonlocal n_iter
+            P0, _ = _affine_camera(c["pos"], tracks, w2, per_frame)
+            pos, jac = robot.jacobians(c["q"])
+            g2 = (_gauge_directions(pos, jac, w2, P0, per_frame) | c["gauge"]) & ~blind
+            q, free = _hold(robot, c["q"], blind, g2 if per_frame else c["gauge"], per_frame, unseen2)
+            # with the smoothness prior, a direction unseen in some frames follows its neighbours there
+            # (one never seen stays held: the prior alone would leave its level and trend free)
+            free_prior = _hold(robot, c["q"], blind, g2 if per_frame else c["gauge"], per_frame, never2)[1]
+            view = c["camera0"] if "camera0" in c else _camera_view(c["pos"], tracks, w2, per_frame)
+            # per-frame IK on the tracks with this camera (robust far from the solution), then all together
+            q = _sequential_ik(robot, tracks, w2, view, free, q[0], c["gauge"])
+            for _ in range(4):  # alternate the closed-form camera(s) with per-frame IK
+                view = _camera_view(robot.positions(q), tracks, w2, per_frame)
+                q, _, _, _, _, it = _sequence_lm(robot, q, tracks, w2, view, free, np.zeros(6, bool), 10, 1e-8,
+                                                 None)
+                n_iter += it
+            pos = robot.positions(q)
+            rn0 = np.linalg.norm(view.apply(pos)[0] - np.nan_to_num(tracks), axis=-1)
+            delta = (_robust_scale(rn0, w2, px_floor) if loss_scale_px is None else
+                     (float(loss_scale_px) if loss_scale_px > 0 else None))
+            delta_used[0] = delta
+            out = _sequence_lm(robot, q, tracks, w2, view, free, np.ones(6, bool), max_iter, tol, delta)
+            for _ in range(2):  # then the branch of every frame, chosen for the whole sequence
+                sig = max(_noise_sigma(out[2], w2), px_floor)
+                q_fix, view_fix = _viterbi_reanchored(robot, out[0], tracks, w2, out[1], free, sig, c["gauge"],
+                                                      per_frame, blind, unseen2)
+                if np.abs(_wrapped(robot, q_fix - out[0])).max() < 0.05:
+                    break
+                new = _sequence_lm(robot, q_fix, tracks, w2, view_fix, free, np.ones(6, bool), max_iter, tol, delta)
+                worst_old = np.nanmax(_rms_per_frame(out[2], w2))
+                better = robust_cost(new[2]) <= 0.99 * robust_cost(out[2]) and \
+                    np.nanmax(_rms_per_frame(new[2], w2)) <= 1.1 * worst_old + px_floor
+                # a tie of the tracks (a wrist whose tracked points lie in one plane, mirrored in depth):
+                # the continuous path wins, and of two alike continuous ones the one nearer the rest pose
+                tie = robust_cost(new[2]) <= 1.05 * robust_cost(out[2])
+                rough_new, rough_old = _roughness(robot, new[0]), _roughness(robot, out[0])
+                smoother = rough_new < 0.5 * rough_old and rough_old - rough_new > 1.0  # a jump gone
+                nearer = rough_new <= 1.5 * rough_old + 1.0 and \
+                    _rest_distance(robot, new[0], new[0][:1], c["gauge"]).mean() < \
+                    _rest_distance(robot, out[0], out[0][:1], c["gauge"]).mean() - 0.1
+                if not (better or tie and (smoother or nearer)):
+                    break  # only a better fit of the tracks, or an equal fit by a smoother path or nearer rest
+                out = new
+            # free where unseen too: a branch held there could not turn with the rest of its path
+            q_rest_branch = _nearest_rest_branch(robot, out[0], free_prior)
+            if q_rest_branch is not out[0]:
+                out = _sequence_lm(robot, q_rest_branch, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol,
+                                   delta)
+            n_iter += out[-1]
+            return dict(cost=float(np.sqrt((w2 * out[2] ** 2).sum() / w2.sum())), sse=float((w2 * out[2] ** 2).sum()),
+                        n_obs=2 * int((w2 > 0).sum()), out=out, c=c, g2=g2,
+                        q=out[0], gauge=g2, down=_looks_down(out[1]), free=free, free_prior=free_prior, delta=delta)
+
+        def seen_from_wrong_side(r):
+            return view_from is not None and (r["down"] < -0.02 if view_from == "above" else r["down"] > 0.02)
+
+        # both mirror images: a poor reconstruction may favour the wrong one in 3D
+        results = [refine_2d(c) for c in candidates]
+        if not per_frame and transform == "similarity" and min(r["cost"] for r in results) > 3 * px_floor:
+            # the tracks are fitted poorly from the reconstruction's start: also a camera found from the
+            # tracks alone (costly, so only then)
+            v2, q2 = _initial_camera(robot, tracks, w2, _hold(robot, candidates[0]["q"], blind, candidates[0]["gauge"],
+                                                              False)[1])
+            alt = refine_2d(dict(candidates[0], q=q2, pos=robot.positions(q2), camera0=v2))
+            if alt["cost"] * 1.5 < min(r["cost"] for r in results):  # clearly better, not a tie
+                results.append(alt)
+        def tracks_tie(a, b):
+            # refined fits: b is as good as a unless its squared residuals exceed a's by more than
+            # 25 noise variances (a likelihood ratio test, noise estimated from a's residuals)
+            var = max(a["sse"] / max(a["n_obs"], 1), (0.05 * px_floor) ** 2)
+            return b["sse"] - a["sse"] <= 25.0 * var
+
+        def order(rs):
+            # among the fits the tracks cannot tell apart: seen from the right side first, then the
+            # one nearer the rest pose
+            best_fit = min(rs, key=lambda r: r["sse"])
+            n_tied = sum(tracks_tie(best_fit, r) for r in rs)
+            rs = _prefer_rest(robot, rs, "cost", blind, tie=tracks_tie)
+            rs[:n_tied] = sorted(rs[:n_tied], key=seen_from_wrong_side)
+            return rs, n_tied > 1
+
+        results, mirror_tied = order(results)
+        def reflection(r, M):
+            # r's motion reflected by M (3 x 3, base frame), fitted in 3D from the refined motion (a far
+            # better start than the reconstruction): a candidate to refine on the tracks
+            nonlocal n_iter
+            X_alt = np.einsum("ij,fkj->fki", M, r["out"][3])
+            q_a, view_a, it_a = _fit_3d(robot, X_alt, w3, free_blind, transform, max_iter, tol, gauge0)
+            q_a, free_a = _hold(robot, q_a, blind, r["c"]["gauge"], False, unseen3)
+            view_a = _align(robot.positions(q_a), X_alt, w3, transform)
+            q_a, view_a, rn_a, pos_a, conv_a, it_b = _sequence_lm(robot, q_a, X_alt, w3, view_a, free_a,
+                                                                  free_sim, 20, tol, None)
+            n_iter += it_a + it_b
+            return dict(sign=-r["c"]["sign"], q=q_a, pos=pos_a, gauge=r["c"]["gauge"], conv=conv_a)
+
+        def depth_mirror(r):
+            R0 = r["out"][1].R[0] if not per_frame else r["out"][1].R.mean(0)
+            return R0.T @ np.diag([1.0, 1.0, -1.0]) @ R0
+
+        def rebranch(r, out):
+            sig = max(_noise_sigma(out[2], w2), px_floor)
+            return _viterbi_reanchored(robot, out[0], tracks, w2, out[1], r["free"], sig, r["c"]["gauge"], per_frame,
+                                       blind, unseen2)
+
+        def reflected_start(r):
+            # r's depth mirror image, a start for the smoothed fit (held as the refinement holds)
+            c = reflection(r, depth_mirror(r))
+            q = _hold(robot, c["q"], blind, c["gauge"], False, unseen2)[0]
+            return dict(r, c=c, q=q, free_prior=_hold(robot, q, blind, c["gauge"], False, never2)[1],
+                        view=_camera_view(robot.positions(q), tracks, w2, False))
+
+        if transform == "similarity":
+            # Two reflections keep every track: the depth mirror (weak perspective), and for a robot
+            # built mirror-symmetric (its tracked points in one vertical plane at rest) the mirror about
+            # that plane, seen through the mirrored camera. The best motion is tried under both; when a
+            # reflection wins (a better fit found from the reflected start), it is reflected in turn,
+            # since its own mirror image may be the one seen from the right side.
+            reflected: list[dict] = []
+            while len(reflected) < 2 and not any(results[0] is r for r in reflected):
+                r0 = results[0]
+                reflected.append(r0)
+                alts = [refine_2d(reflection(r0, M)) for M in (depth_mirror(r0), np.diag([1.0, -1.0, 1.0]))]
+                results, mirror_tied = order(results + alts)
+        r = results[0]
+        sigma = _noise_sigma(r["out"][2], w2)
+        if accel_std is not None and robot.euclidean and F >= 3 and not per_frame and sigma > 1e-6:
+            # joint accelerations ~ N(0, accel_std^2) against pixel noise sigma: the prior's weight
+            mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
+            smoothed = True
+            decay_frames = np.inf if speed_decay_s is None else speed_decay_s * float(fps)
+            r, mirror_tied, it = _most_probable(robot, results, tracks, w2, _motion_prior(unseen2, mu, decay_frames),
+                                                max(sigma, px_floor), max_iter, tol, seen_from_wrong_side,
+                                                reflected_start, rebranch)
+            n_iter += it
+        (q, view, rn, pos_base, conv2, _), best, gauge = r["out"], r["c"], r["g2"]
+        converged = conv2  # the 3D stage only started this one
+        residual_px = _rms_per_frame(rn, w2)
+        cams = view.matrices()
+        ts2 = view.T[view.cam_of].copy()
+        timings["refine_2d"] = time.perf_counter() - t1
+    else:
+        q, pos_base = best["q"], best["pos"]
+    unseen = unseen2 if refine and tracks is not None else unseen3
+    if not smoothed and (unseen & ~blind).any():  # the solvers held these; the neighbours' values, interpolated
+        q = _fill_unseen(robot, q, unseen & ~(blind | gauge))
+        pos_base = robot.positions(q)
+
+    # ---- report in the reconstruction's frame: X = s R x + t (the mirror folded into R)
+    X = best["sign"] * Xz
+    if transform == "none":
+        s, R, t = 1.0, np.eye(3), np.zeros(3)
+    else:
+        s, R, t = similarity_align(pos_base, X, w3)
+        s = s if transform == "similarity" else 1.0
+    R, t = best["sign"] * R, best["sign"] * t
+    positions = s * pos_base @ R.T + t
+    residual_3d = _rms_per_frame(np.linalg.norm(positions - Xz, axis=-1), w3)
+    observable = np.ones(robot.nq, bool)
+    relative = np.zeros(robot.nq, bool)
+    for v in np.flatnonzero(blind | gauge):
+        qi = robot.q_of_v[v]
+        if qi >= 0:
+            observable[qi] = False
+            relative[qi] = bool(gauge[v] and not blind[v] and not per_frame)
+    notes = _notes(robot, blind, gauge & ~blind, per_frame)
+    if residual_px is not None:  # view: the fitted camera(s); its third row is the depth axis
+        for parent, turned, frames in _face_on_planes(robot, q, view.R[view.cam_of][:, 2]):
+            notes.append(f"the tracked points beyond {parent} lie in one plane that the camera sees within {FACE_ON_DEG:g} "
+                         f"degrees of face-on in frames {_frame_ranges(frames)}: there the motion can pass unseen "
+                         f"to its mirror image in depth ({', '.join(turned)} differ), so the branch after those "
+                         "frames is a guess; track a point off that plane (extra_frames) to settle it")
+    msg = "; ".join(notes) if notes else "all joints observable"
+    if mirror_tied:
+        msg += ("; the motion and its mirror image fit the data equally well (weak perspective): "
+                + (f"the one seen from {view_from} the base plane is reported" if refine and tracks is not None
+                   and view_from else "the one nearer the rest pose is reported"))
+    converged = np.broadcast_to(np.asarray(converged, bool), (F,)).copy()
+    if not converged.all():
+        msg = "the solver stopped before it converged; " + msg
+        warnings.warn(f"fit_joint_angles: {msg}", ConvergenceWarning, stacklevel=2)
+    timings["total"] = time.perf_counter() - t0
+    return JointFit(
+        q=q, joint_names=list(robot.joint_names), observable=observable, positions=positions,
+        residual_3d=residual_3d, residual_px=residual_px, converged=converged, scale=float(s), rotation=R,
+        translation=t, cameras=cams, translations_2d=ts2, chain=chain, urdf_path=urdf,
+        message=msg, n_iter=int(n_iter), relative=relative,
+        tracks=tracks, confidence=confidence, positions_base=pos_base, input_poses=poses, timings=timings,
+    )

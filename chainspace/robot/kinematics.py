@@ -1,0 +1,256 @@
+"""The robot's Pinocchio model seen as the chain's tracked points: positions, Jacobians, joint-space
+steps and distances (angles wrapped on continuous joints, limits kept by projection).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+import numpy as np
+
+from ..chain import KinematicChain
+from ..errors import DescriptionError, DescriptionNotFoundError
+
+
+class RobotKinematics:
+    """The Pinocchio model of a URDF with one frame per point of a chain, in the chain's order.
+
+    ``positions(q)`` and ``jacobians(q)`` are vectorised over frames in their interface (q is (F, nq));
+    the loop over frames is Pinocchio's. Points named in ``chain.metadata["extra_frames"]``
+    ({name: (parent_link, [x, y, z])}) are added as operational frames.
+    """
+
+    def __init__(self, urdf: str | Path, chain: KinematicChain) -> None:
+        import pinocchio as pin
+
+        self.pin = pin
+        path = Path(urdf)
+        if not path.is_file():
+            raise DescriptionNotFoundError(f"URDF file {path} does not exist")
+        try:
+            self.model = pin.buildModelFromUrdf(str(path))
+        except Exception as exc:  # Pinocchio raises plain RuntimeError/ValueError
+            raise DescriptionError(f"{path}: Pinocchio cannot read this URDF: {exc}") from None
+        self.urdf_path = str(path)
+        self.chain = chain
+        extra = dict(chain.metadata.get("extra_frames") or {})
+        self.frame_ids = [int(self._frame_id(n, extra)) for n in chain.joints]
+        self.data = self.model.createData()
+        m = self.model
+        self.nq, self.nv = m.nq, m.nv
+        self.lower = np.array(m.lowerPositionLimit, dtype=float)
+        self.upper = np.array(m.upperPositionLimit, dtype=float)
+        # Only 1-dof joints with nq == nv (revolute, prismatic) have meaningful box limits.
+        self.limited = np.zeros(self.nq, bool)
+        self.idx_v = np.zeros(self.nq, int) - 1  # velocity index of each 1-dof q entry
+        for j in range(1, m.njoints):
+            jm = m.joints[j]
+            if jm.nq == 1 and jm.nv == 1:
+                self.limited[jm.idx_q] = np.isfinite(self.lower[jm.idx_q]) and np.isfinite(self.upper[jm.idx_q]) \
+                    and self.upper[jm.idx_q] > self.lower[jm.idx_q]
+                self.idx_v[jm.idx_q] = jm.idx_v
+        self.euclidean = self.nq == self.nv
+        # 1-dof revolute joints: q and q + 2 pi are the same pose
+        self.revolute = np.zeros(self.nq, bool)
+        for j in range(1, m.njoints):
+            jm = m.joints[j]
+            if jm.nq == 1 and jm.shortname().startswith(("JointModelR", "JointModelRevolute")) \
+                    and "Unbounded" not in jm.shortname():
+                self.revolute[jm.idx_q] = True
+        q_rest = chain.metadata.get("q_rest")
+        self.q_rest = self.clip(np.asarray(q_rest, float) if q_rest is not None and np.size(q_rest) == self.nq
+                                else np.array(pin.neutral(m)))
+        self.joint_names = self._q_names()
+        # Each point as its joint's placement applies it: the parent joint, the point in its frame
+        # (homogeneous), and the velocity directions that move it (J, nv): its supporting joints.
+        self._parent_joint = np.array([m.frames[fid].parentJoint for fid in self.frame_ids], int)
+        self._in_parent = np.array([np.append(m.frames[fid].placement.translation, 1.0) for fid in self.frame_ids])
+        self._carried_by = np.zeros((len(self.frame_ids), self.nv), bool)
+        for k, parent in enumerate(self._parent_joint):
+            for j in m.supports[int(parent)][1:]:
+                self._carried_by[k, m.joints[j].idx_v:m.joints[j].idx_v + m.joints[j].nv] = True
+        # Where solvers start from "the rest pose": the rest pose with every revolute joint turned a
+        # little, because rest poses are often singular (a stretched wrist, an upright arm), where the
+        # gradient cannot tell a joint's sign.
+        up = self.q_rest + 0.3
+        seed = np.where(self.limited & (up > self.upper), self.q_rest - 0.3, up)
+        self.q_seed = self.clip(np.where(self.revolute, seed, self.q_rest))
+        self.q_seed_other = self.clip(2 * self.q_rest - self.q_seed)  # turned the other way
+        # the velocity index driving each q entry (-1 for the extra entries of multi-dof joints)
+        self.v_of_q = self.idx_v.copy()
+        self.q_of_v = np.array([int(np.flatnonzero(self.idx_v == v)[0]) if (self.idx_v == v).any() else -1
+                                for v in range(self.nv)])
+
+    def _frame_id(self, name: str, extra: dict) -> int:
+        pin, m = self.pin, self.model
+        if name in extra:
+            parent, xyz = extra[name]
+            if not m.existFrame(parent):
+                raise DescriptionError(
+                    f"{self.urdf_path}: extra frame {name!r} hangs from {parent!r}, which is not a link of the URDF")
+            pf = m.getFrameId(parent)
+            frame = m.frames[pf]
+            placement = frame.placement * pin.SE3(np.eye(3), np.asarray(xyz, dtype=float))
+            return m.addFrame(pin.Frame(name, frame.parentJoint, pf, placement, pin.FrameType.OP_FRAME))
+        if m.existFrame(name, pin.FrameType.BODY):
+            return m.getFrameId(name, pin.FrameType.BODY)
+        if m.existFrame(name):
+            return m.getFrameId(name)
+        raise DescriptionError(
+            f"{self.urdf_path}: chain point {name!r} is neither a link of the URDF nor an extra frame "
+            f"(extra frames: {sorted(extra) or 'none'}); build the chain with chainspace.from_urdf")
+
+    def _q_names(self) -> list[str]:
+        m, names = self.model, []
+        for j in range(1, m.njoints):
+            nq = m.joints[j].nq
+            names += [m.names[j]] if nq == 1 else [f"{m.names[j]}[{k}]" for k in range(nq)]
+        return names
+
+    # ------------------------------------------------------------------ configuration space
+    def clip(self, q: np.ndarray) -> np.ndarray:
+        """Project configurations (..., nq) into the joint limits."""
+        q = np.array(q, dtype=float)
+        q[..., self.limited] = np.clip(q[..., self.limited], self.lower[self.limited], self.upper[self.limited])
+        return q
+
+    def wrap_near(self, q: np.ndarray, ref: np.ndarray) -> np.ndarray:
+        """Shift revolute joints of a path q (F, nq) by whole turns, the same for all frames, so that the
+        first frame is nearest ref (nq,), where the limits allow: the same poses, comparable angles."""
+        q = np.array(q, dtype=float)
+        k = np.round((q[0] - ref) / (2 * np.pi)) * self.revolute
+        for turns in (k, np.sign(k) * (np.abs(k) - 1)):
+            shifted = q - 2 * np.pi * turns
+            ok = ~self.limited | ((shifted.min(0) >= self.lower - 1e-12) & (shifted.max(0) <= self.upper + 1e-12))
+            ok &= turns != 0
+            q[:, ok] = shifted[:, ok]
+            k = np.where(ok, 0, k)
+        return q
+
+    def continuous(self, q: np.ndarray) -> np.ndarray:
+        """A path q (F, nq) without whole-turn jumps between frames: each revolute joint unwrapped along
+        the frames, then moved by whole turns into its limits (the first frame's turn kept where
+        possible). A joint whose unwrapped path does not fit its limits keeps its values."""
+        q = np.array(q, dtype=float)
+        for i in np.flatnonzero(self.revolute):
+            u = np.unwrap(q[:, i])
+            u -= 2 * np.pi * np.round((u[0] - q[0, i]) / (2 * np.pi))
+            if self.limited[i]:
+                u -= 2 * np.pi * np.ceil(max(u.max() - self.upper[i] - 1e-9, 0.0) / (2 * np.pi))
+                u += 2 * np.pi * np.ceil(max(self.lower[i] - u.min() - 1e-9, 0.0) / (2 * np.pi))
+                if u.min() < self.lower[i] - 1e-9 or u.max() > self.upper[i] + 1e-9:
+                    continue
+            q[:, i] = u
+        return q
+
+    def integrate(self, q: np.ndarray, dv: np.ndarray, clip: bool = True) -> np.ndarray:
+        """q (F, nq) moved by velocities dv (F, nv), then clipped into the limits (unless not ``clip``)."""
+        if self.euclidean:
+            out = q + dv
+        else:
+            out = np.array([self.pin.integrate(self.model, qf, vf) for qf, vf in zip(q, dv)])
+        return self.clip(out) if clip else out
+
+    def angles(self, q: np.ndarray) -> np.ndarray:
+        """(F, nv) per-dof coordinates: q itself for 1-dof joints; continuous joints' (cos, sin) as an
+        unwrapped angle. Other multi-dof joints (spherical, free) give the difference to the rest."""
+        q = np.asarray(q, float)
+        if self.euclidean:
+            return q.copy()
+        out = np.zeros(q.shape[:-1] + (self.nv,))
+        m = self.model
+        for j in range(1, m.njoints):
+            jm = m.joints[j]
+            if jm.nq == jm.nv:
+                out[..., jm.idx_v:jm.idx_v + jm.nv] = q[..., jm.idx_q:jm.idx_q + jm.nq]
+            elif jm.nq == 2 and jm.nv == 1:
+                out[..., jm.idx_v] = np.unwrap(np.arctan2(q[..., jm.idx_q + 1], q[..., jm.idx_q]), axis=0)
+            else:
+                for f in np.ndindex(q.shape[:-1]):
+                    d = self.pin.difference(m, self.q_rest, q[f])
+                    out[f + (slice(jm.idx_v, jm.idx_v + jm.nv),)] = d[jm.idx_v:jm.idx_v + jm.nv]
+        return out
+
+    # ------------------------------------------------------------------ kinematics
+    def positions(self, q: np.ndarray) -> np.ndarray:
+        """World positions (F, J, 3) of the chain's points for configurations q (F, nq), metres."""
+        pin, m, d = self.pin, self.model, self.data
+        q = np.atleast_2d(q)
+        placements = np.empty((len(q), m.njoints, 4, 4))
+        for f, qf in enumerate(q):
+            pin.forwardKinematics(m, d, qf)
+            placements[f] = [M.homogeneous for M in d.oMi.tolist()]
+        return self._points(placements)
+
+    def _points(self, placements: np.ndarray) -> np.ndarray:
+        """The chain's points (F, J, 3) from the joints' world placements (F, njoints, 4, 4): one product
+        for all points and frames, where reading each point's placement from Pinocchio takes a call."""
+        return (placements[:, self._parent_joint] @ self._in_parent[..., None])[..., :3, 0]
+
+    def jacobians(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions (F, J, 3) and translational frame Jacobians (F, J, 3, nv) in world axes."""
+        pin, m, d = self.pin, self.model, self.data
+        q = np.atleast_2d(q)
+        placements = np.empty((len(q), m.njoints, 4, 4))
+        spatial = np.empty((len(q), 6, self.nv))
+        for f, qf in enumerate(q):
+            pin.computeJointJacobians(m, d, qf)
+            spatial[f] = d.J
+            placements[f] = [M.homogeneous for M in d.oMi.tolist()]
+        # What pin.getFrameJacobian(LOCAL_WORLD_ALIGNED) returns: the world Jacobian's twist moved to each
+        # point, on the joints that carry it; for all points and frames at once. One Pinocchio call per
+        # point and frame cost more than the kinematics themselves.
+        pos = self._points(placements)
+        lin, ang = spatial[:, None, :3], spatial[:, None, 3:]
+        return pos, (lin + np.cross(ang, pos[..., None], axis=2)) * self._carried_by[:, None]
+
+    def reach(self) -> float:
+        """Largest distance of a chain point from the root over the rest pose and the limits' middle, m."""
+        qs = [self.q_rest, self.clip(np.where(self.limited, 0.5 * (self.lower + self.upper), self.q_rest))]
+        p = self.positions(np.array(qs))
+        return float(np.linalg.norm(p - p[:, :1], axis=-1).max())
+
+
+def _held_q(robot: RobotKinematics, free: np.ndarray) -> np.ndarray:
+    """(..., nq) entries of q held where free (..., nv) holds their direction."""
+    held = np.zeros(free.shape[:-1] + (robot.nq,), bool)
+    vq = robot.v_of_q >= 0
+    held[..., vq] = ~free[..., robot.v_of_q[vq]]
+    return held
+
+
+def _random_q(robot: RobotKinematics, rng: np.random.Generator, n: int) -> np.ndarray:
+    """(n, nq) configurations drawn uniformly within the joint limits (a turn either way where none)."""
+    lo = np.where(robot.limited, np.maximum(robot.lower, -np.pi), -np.pi)
+    hi = np.where(robot.limited, np.minimum(robot.upper, np.pi), np.pi)
+    return robot.clip(rng.uniform(lo, hi, (n, robot.nq)))
+
+
+def _seeded(robot: RobotKinematics, q: np.ndarray, free: np.ndarray, other_side: bool = False) -> np.ndarray:
+    """Start configurations (F, nq): the solver seed near the rest pose (or the one turned the other
+    way) where a direction is free, the current q where it is held."""
+    return np.where(_held_q(robot, free), q, robot.q_seed_other if other_side else robot.q_seed)
+
+
+def _wrapped(robot: RobotKinematics, dq: np.ndarray) -> np.ndarray:
+    """Differences of configurations with revolute joints wrapped into [-pi, pi)."""
+    return np.where(robot.revolute, (dq + np.pi) % (2 * np.pi) - np.pi, dq)
+
+
+def _roughness(robot: RobotKinematics, q: np.ndarray) -> float:
+    """Sum of squared joint steps between frames (wrapped), rad^2: large where a path jumps branches."""
+    return float((_wrapped(robot, np.diff(q, axis=0)) ** 2).sum())
+
+
+def _gauge_q(robot: RobotKinematics, gauge_v: np.ndarray) -> np.ndarray:
+    """(nq,) mask of the q entries driven by the velocity directions gauge_v (nv,)."""
+    out = np.zeros(robot.nq, bool)
+    qi = robot.q_of_v[gauge_v]
+    out[qi[qi >= 0]] = True
+    return out
+
+
+def _rest_distance(robot: RobotKinematics, q: np.ndarray, q_prev: np.ndarray, gauge: np.ndarray) -> np.ndarray:
+    """Summed absolute joint offsets (wrapped) of q (N, nq) from the rest pose; gauge joints (whose
+    absolute value the view absorbs) count from q_prev instead."""
+    ref = np.where(_gauge_q(robot, gauge), q_prev, robot.q_rest)
+    return np.abs(_wrapped(robot, q - ref)).sum(-1)

@@ -1,0 +1,126 @@
+"""Which joints the tracks can see: joints no tracked point moves with, joints a camera motion
+imitates (gauge directions), directions unseen in some frames, and the notes that say so.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .kinematics import RobotKinematics
+from .views import _skew
+
+
+def _structural(robot: RobotKinematics, w: np.ndarray, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """What the tracked points (those with weight somewhere in w (F, J)) can see, from the structure
+    alone: at a few random configurations, the (nv,) directions that move no tracked point (blind) and
+    those a change of the sequence's similarity imitates (gauge)."""
+    rng = np.random.default_rng(seed)
+    lo = np.where(robot.limited, robot.lower, -np.pi)
+    hi = np.where(robot.limited, robot.upper, np.pi)
+    qs = robot.clip(np.where(robot.v_of_q >= 0, rng.uniform(lo, hi, (3, robot.nq)), robot.q_rest))
+    pos, jac = robot.jacobians(qs)
+    seen = (w > 0).any(0)
+    ext = max(np.linalg.norm(pos[:, seen] - pos[:, seen].mean(1, keepdims=True), axis=-1).max(), 1e-9)
+    blind = np.linalg.norm(jac[:, seen], axis=2).max(axis=(0, 1)) < 1e-9 * ext
+    gauge = _gauge_directions(pos[:, seen], jac[:, seen], np.ones((3, seen.sum())), None, False) & ~blind
+    return blind, gauge
+
+
+def _unseen(robot: RobotKinematics, w: np.ndarray, seed: int = 0) -> np.ndarray:
+    """(F, nv) directions that move no point seen in that frame (w (F, J) > 0): the data say nothing
+    about them there, so they are held and later interpolated from the neighbouring frames."""
+    rng = np.random.default_rng(seed)
+    lo = np.where(robot.limited, robot.lower, -np.pi)
+    hi = np.where(robot.limited, robot.upper, np.pi)
+    qs = robot.clip(np.where(robot.v_of_q >= 0, rng.uniform(lo, hi, (3, robot.nq)), robot.q_rest))
+    pos, jac = robot.jacobians(qs)
+    ext = max(np.linalg.norm(pos - pos.mean(1, keepdims=True), axis=-1).max(), 1e-9)
+    moves = np.linalg.norm(jac, axis=2).max(0) > 1e-9 * ext  # (J, nv) structural support
+    return ~((w > 0).astype(float) @ moves.astype(float) > 0)
+
+
+def _fill_unseen(robot: RobotKinematics, q: np.ndarray, unseen: np.ndarray) -> np.ndarray:
+    """q (F, nq) with each direction's unseen frames linearly interpolated (unwrapped) from its seen ones."""
+    q = q.copy()
+    f = np.arange(len(q))
+    for v in np.flatnonzero(unseen.any(0) & ~unseen.all(0)):
+        qi = robot.q_of_v[v]
+        if qi < 0:
+            continue
+        ok = ~unseen[:, v]
+        vals = np.unwrap(q[ok, qi]) if robot.revolute[qi] else q[ok, qi]
+        q[~ok, qi] = np.interp(f[~ok], f[ok], vals)
+    return robot.clip(q)
+
+
+def _gauge_directions(x: np.ndarray, jac: np.ndarray, w: np.ndarray, P: np.ndarray | None, per_frame: bool,
+                      tol: float = 1e-3) -> np.ndarray:
+    """(nv,) directions whose motion of the tracked points a change of view imitates exactly.
+
+    x (F, J, 3) base-frame points, jac (F, J, 3, nv), w (F, J), P (F, 2, 3) cameras or None (3D: a
+    similarity). The generators of a view change are a rotation (omega x x), a scale (x) and a
+    translation (in the image only its two in-plane components); one change for the whole sequence
+    (per_frame False) or one per frame.
+    """
+    F, J, _, nv = jac.shape
+    G = np.concatenate([-_skew(x), x[..., None], np.broadcast_to(np.eye(3), (F, J, 3, 3))], -1)
+    if P is not None:
+        G = np.concatenate([np.einsum("fic,fjcg->fjig", P, G[..., :4]),
+                            np.broadcast_to(np.eye(2), (F, J, 2, 2))], -1)
+        jac = np.einsum("fic,fjcv->fjiv", P, jac)
+    sw = np.sqrt(w)[..., None, None]
+    G, jac = G * sw, jac * sw
+    A = G.reshape(F, -1, G.shape[-1]) if per_frame else G.reshape(1, -1, G.shape[-1])
+    b = jac.reshape(len(A), -1, nv)
+    res = b - A @ (np.linalg.pinv(A) @ b)
+    num = np.sqrt((res ** 2).sum((0, 1)))
+    den = np.sqrt((b ** 2).sum((0, 1)))
+    return num < tol * np.maximum(den, 1e-300)
+
+
+def _names_of_v(robot: RobotKinematics) -> list[str]:
+    m = robot.model
+    return [m.names[j] for j in range(1, m.njoints) for _ in range(m.joints[j].nv)]
+
+
+def _hold(robot: RobotKinematics, q: np.ndarray, blind: np.ndarray, gauge: np.ndarray,
+          per_frame: bool, unseen: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Hold blind directions at rest in every frame; gauge directions at rest in frame 0 (shifting the
+    whole sequence, which a view change undoes) or, with per-frame views, at their current values.
+    Returns (q, free (F, nv))."""
+    q = q.copy()
+    free = np.ones((len(q), robot.nv), bool)
+    for v in np.flatnonzero(blind | gauge):
+        qi = robot.q_of_v[v]
+        if blind[v]:
+            free[:, v] = False
+            if qi >= 0:
+                q[:, qi] = robot.q_rest[qi]
+        elif per_frame:
+            free[:, v] = False
+        else:
+            free[0, v] = False
+            if qi >= 0:
+                q[:, qi] += robot.q_rest[qi] - q[0, qi]
+    if unseen is not None:  # directions no seen point moves in a frame: held there (at their neighbours')
+        free &= ~unseen
+        q = _fill_unseen(robot, q, unseen & ~(blind | gauge))
+    return robot.clip(q), free
+
+
+def _notes(robot: RobotKinematics, blind: np.ndarray, gauge: np.ndarray, per_frame: bool) -> list[str]:
+    names = _names_of_v(robot)
+    notes = []
+    if blind.any():
+        notes.append("not observable, held at rest (no tracked point moves with it): "
+                     + ", ".join(names[v] for v in np.flatnonzero(blind)))
+    if gauge.any():
+        how = ("not observable, absorbed by each frame's camera, held at the 3D fit" if per_frame else
+               "observable only relative to the first frame (a turn of the camera looks the same), "
+               "held at rest in frame 0")
+        notes.append(f"{how}: {', '.join(names[v] for v in np.flatnonzero(gauge))}")
+    if blind.any():
+        notes.append("to see a joint, track a point that moves with it, off its axis (extra_frames)")
+    if gauge.any():
+        notes.append("to see the first joint absolutely, track a point fixed to the base, off its axis")
+    return notes

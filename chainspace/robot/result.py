@@ -1,0 +1,67 @@
+"""The result of a joint-angle fit: :class:`JointFit`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import numpy as np
+
+from ..chain import KinematicChain
+from .kinematics import RobotKinematics
+
+
+@dataclass
+class JointFit:
+    """Joint angles fitted to a robot's motion.
+
+    q (F, nq) radians / metres in Pinocchio's order; joint_names one per q entry; observable (nq,) bool
+    (False: held fixed, see the module docstring); relative (nq,) bool (seen only relative to the first
+    frame); positions (F, J, 3) fitted chain points in the reconstruction's frame (metres when the
+    reconstruction is); residual_3d (F,) RMS distance to the reconstructed points; residual_px (F,) RMS
+    reprojection error or None; converged (F,) bool; scale, rotation (3, 3), translation (3,) the
+    similarity from the robot's base frame to the reconstruction's; cameras (F, 2, 3) and
+    translations_2d (F, 2) map the base frame to the image (``u = cameras[f] @ x + translations_2d[f]``).
+    """
+
+    q: np.ndarray
+    joint_names: list[str]
+    observable: np.ndarray
+    positions: np.ndarray
+    residual_3d: np.ndarray
+    residual_px: np.ndarray | None
+    converged: np.ndarray
+    scale: float
+    rotation: np.ndarray
+    translation: np.ndarray
+    cameras: np.ndarray | None
+    translations_2d: np.ndarray | None
+    chain: KinematicChain
+    urdf_path: str
+    message: str
+    n_iter: int
+    relative: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    tracks: np.ndarray | None = None
+    confidence: np.ndarray | None = None
+    positions_base: np.ndarray | None = None
+    input_poses: np.ndarray | None = None
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.q)
+
+    def kinematics(self) -> RobotKinematics:
+        """The Pinocchio model used by the fit (rebuilt from ``urdf_path``)."""
+        return RobotKinematics(self.urdf_path, self.chain)
+
+    def reprojected(self) -> np.ndarray | None:
+        """(F, J, 2) the fitted robot seen by the fitted camera, or None without a camera."""
+        if self.cameras is None or self.positions_base is None:
+            return None
+        return np.einsum("fij,fkj->fki", self.cameras, self.positions_base) + self.translations_2d[:, None]
+
+    def __repr__(self) -> str:
+        obs = int(self.observable.sum())
+        px = "" if self.residual_px is None else f", reprojection {np.nanmean(self.residual_px):.3g} px"
+        return (f"JointFit({self.n_frames} frames, {len(self.joint_names)} q entries ({obs} observable){px}, "
+                f"converged {int(self.converged.sum())}/{self.n_frames}: {self.message})")

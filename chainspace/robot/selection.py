@@ -1,0 +1,111 @@
+"""The choice among candidate motions that fit the tracks alike (see the rules in
+:mod:`chainspace.robot.fit`): nearest the rest pose, the most probable under the motion prior.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+import numpy as np
+
+from .kinematics import RobotKinematics, _roughness, _wrapped
+from .views import _View, _looks_down
+from .solver import _smooth_lm, _smoothed_objective
+from .candidates import _LONG_GAP, _across_long_gaps, _turned_views
+
+
+def _prefer_rest(robot: RobotKinematics, cands: list[dict], key: str, blind: np.ndarray,
+                 floor: float = 0.0, tie=None) -> list[dict]:
+    """Candidates sorted by their error ``key``; among those the data cannot tell apart (error within
+    1.5 times the best plus ``floor``, as a mirror image often fits as well as the truth; or
+    ``tie(best, c)``), the nearest the rest pose (mean absolute joint offset over the fitted,
+    observable joints) comes first."""
+    cands = sorted(cands, key=lambda c: c[key])
+    tie = tie or (lambda b, c: c[key] <= 1.5 * b[key] + floor + 1e-12)
+    tied = [c for c in cands if tie(cands[0], c)]
+
+    def distance(c):
+        seen = ~(blind | c["gauge"])[robot.v_of_q[robot.v_of_q >= 0]]
+        d = _wrapped(robot, c["q"] - robot.q_rest)[:, robot.v_of_q >= 0][:, seen]
+        return float(np.abs(d).mean()) if d.size else 0.0
+
+    tied.sort(key=distance)
+    tied_ids = {id(c) for c in tied}  # identity: `in` would compare the dicts' arrays
+    return tied + [c for c in cands if id(c) not in tied_ids]
+
+
+def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarray, w: np.ndarray, prior,
+                   sigma: float, max_iter: int, tol: float, wrong_side: Callable[[dict], bool],
+                   reflected: Callable[[dict], dict],
+                   rebranch: Callable[[dict, tuple], tuple[np.ndarray, _View]]) -> tuple[dict, bool, int]:
+    """The fit of the most probable motion under the smoothness prior, among ``results`` (refined fits,
+    preferred first): each distinct fit that the tracks alone nearly tie is smoothed (:func:`_smooth_lm`)
+    and scored by the smoothed objective, robust residuals plus the motion prior (``prior``, the sparse
+    matrix of :func:`_motion_prior`), with one Huber threshold for all; a direction that no point seen
+    in a frame moves is free there (``free_prior``: the prior interpolates it). When the lowest is seen
+    from the wrong side (``wrong_side``), its mirror image (``reflected``: a start with ``q``, ``view``,
+    ``free_prior``) is smoothed and scored too. Each
+    smoothed fit then gets the branch of every frame chosen again (``rebranch``, a Viterbi pass) and is
+    smoothed again while that lowers its score. The best is smoothed again from views turned about
+    its gauge joint (:func:`_turned_views`). Of the fits within 25 noise variances of the lowest score,
+    the one that moves least (:func:`_roughness`) among those seen from the right side wins, else among
+    all; it is returned with its smoothed ``out``.
+
+    Why: a motion that fits the tracks a little better frame by frame (a wrong mirror image of a
+    nearly symmetric robot, a branch that jumps) may do so only by moving less plausibly, and the
+    prior is what says how plausible a motion is. The refinement frame by frame can also leave jumps
+    in one mirror image and not in the other: the smooth one, reflected, gives that side a smooth
+    start. Returns (fit, whether another distinct fit tied, iterations).
+    """
+    best_sse = min(r["sse"] for r in results)
+    delta = results[0]["delta"]
+    scored: list[tuple[float, dict]] = []
+    n_iter = 0
+
+    def smoothed(r, q, view):
+        nonlocal n_iter
+        out = _smooth_lm(robot, robot.continuous(q), tracks, w, view, r["free_prior"], np.ones(6, bool), max_iter,
+                         tol, delta, prior)
+        n_iter += out[5]
+        return _smoothed_objective(prior, out[0], out[2], w, delta), out
+
+    def score(r, q, view):
+        objective, out = smoothed(r, q, view)
+        for _ in range(2):  # the smoothed motion may still jump branches that a local step cannot undo
+            q_b, view_b = rebranch(r, out)
+            if np.abs(_wrapped(robot, q_b - out[0])).max() < 0.05:
+                break
+            objective_b, out_b = smoothed(r, q_b, view_b)
+            if objective_b >= (1 - 1e-3) * objective:
+                break
+            objective, out = objective_b, out_b
+        if not known(out[0]):  # else a motion met before, which keeps its place in the order
+            scored.append((objective, dict(r, out=out, q=out[0], down=_looks_down(out[1]))))
+
+    def known(q):
+        return any(np.abs(_wrapped(robot, q - o["q"])).max() < 0.05 for _, o in scored)
+
+    for r in results:
+        near = r["sse"] <= 1.1 * best_sse + 25.0 * sigma ** 2
+        if near and not known(r["q"]):
+            score(r, r["out"][0], r["out"][1])  # else a poor fit of the tracks, or one already scored
+    best, r = min(scored, key=lambda sr: sr[0])
+    for view_t in _turned_views(robot, r["q"], r["out"][1], r["gauge"]):
+        score(r, r["q"], view_t)
+    best, r = min(scored, key=lambda sr: sr[0])
+    # a joint seen again after a long gap: the bridges to its other branches that score alike (the
+    # acceleration prior charges nothing for a straight ramp), the one that moves least wins
+    least = (_roughness(robot, r["q"]), best, r)
+    for q_b in _across_long_gaps(robot, r["q"], tracks, w, r["out"][1], r["free"], sigma, _LONG_GAP):
+        objective, out = smoothed(r, q_b, r["out"][1])
+        moved = _roughness(robot, out[0])
+        if objective <= best + 25.0 * sigma ** 2 and moved < least[0]:
+            least = (moved, objective, dict(r, out=out, q=out[0], down=_looks_down(out[1])))
+    if least[2] is not r:
+        scored = [sr for sr in scored if sr[1] is not r] + [least[1:]]
+        r = least[2]
+    if wrong_side(r):
+        start = reflected(r)
+        score(start, start["q"], start["view"])
+    lowest = min(sr[0] for sr in scored)
+    tied = [r for sr, r in scored if sr - lowest <= 25.0 * sigma ** 2]
+    return min(tied, key=lambda r: (wrong_side(r), _roughness(robot, r["q"]))), len(tied) > 1, n_iter

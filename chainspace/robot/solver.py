@@ -1,0 +1,250 @@
+"""Levenberg-Marquardt over a sequence: per-frame joint angles and a shared (or per-frame) view,
+a robust (Huber) loss, and the acceleration prior of the smoothed fit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .kinematics import RobotKinematics
+from .views import _View, _skew
+
+
+def _huber(rn: np.ndarray, delta: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """Huber loss rho(r) and IRLS weight rho'(r) / (2 r) of residual norms (plain squares when delta is None)."""
+    if delta is None:
+        return rn ** 2, np.ones_like(rn)
+    inside = rn <= delta
+    return (np.where(inside, rn ** 2, 2 * delta * rn - delta ** 2),
+            np.where(inside, 1.0, delta / np.maximum(rn, 1e-300)))
+
+
+def _normal_equations(view: _View, jac: np.ndarray, y: np.ndarray, res: np.ndarray, ww: np.ndarray,
+                      free: np.ndarray, free_view: np.ndarray):
+    """Gauss-Newton blocks of the weighted residuals res (F, J, D) = S (R x)[:D] + T - target.
+
+    jac (F, J, 3, nv) point Jacobians, y = R x (F, J, 3), ww (F, J) IRLS weights. Returns per frame
+    Hqq (F, nv, nv), Hqc (F, nv, nc), gq (F, nv) and per view Hcc (C, nc, nc), gc (C, nc); view
+    parameters: rotation vector, scale, translation (nc = 4 + D).
+    """
+    F, J, D = res.shape
+    sc = view.S[view.cam_of][:, None, None, None]
+    Jq = (view.matrices()[:, None] @ jac * free[:, None, None, :]).reshape(F, J * D, -1)
+    Jc = (np.concatenate([-sc * _skew(y)[..., :D, :], y[..., :D, None],
+                          np.broadcast_to(np.eye(D), (F, J, D, D))], -1) * free_view).reshape(F, J * D, -1)
+    # batched products over the stacked (point, axis) rows: einsum's three-operand loops were the
+    # solver's main cost after the kinematics
+    JqW = (Jq * np.repeat(ww, D, axis=1)[..., None]).transpose(0, 2, 1)
+    JcW = (Jc * np.repeat(ww, D, axis=1)[..., None]).transpose(0, 2, 1)
+    r = res.reshape(F, J * D, 1)
+    Hqq, Hqc, gq = JqW @ Jq, JqW @ Jc, (JqW @ r)[..., 0]
+    C, nc = len(view.S), 4 + D
+    Hcc, gc = np.zeros((C, nc, nc)), np.zeros((C, nc))
+    np.add.at(Hcc, view.cam_of, JcW @ Jc)
+    np.add.at(gc, view.cam_of, (JcW @ r)[..., 0])
+    return Hqq, Hqc, gq, Hcc, gc
+
+
+def _beyond_sightings(unseen: np.ndarray) -> np.ndarray:
+    """(F-1, nv) steps between frames f and f+1 that lie before the first or after the last frame in
+    which each direction is seen (``unseen`` (F, nv): :func:`_unseen`); False for directions never seen."""
+    seen = ~unseen
+    F = len(seen)
+    first = np.argmax(seen, axis=0)
+    last = F - 1 - np.argmax(seen[::-1], axis=0)
+    f = np.arange(F - 1)[:, None]
+    return ((f >= last) | (f + 1 <= first)) & seen.any(0)
+
+
+def _motion_prior(unseen: np.ndarray, mu: float, decay_frames: float):
+    """(F nv, F nv) sparse matrix M of the prior on the motion, q' M q' (q' the joint angles frame after
+    frame): mu |joint accelerations|^2 (per frame^2), plus, where a direction lies beyond its first or
+    last sighting (``unseen`` (F, nv), :func:`_beyond_sightings`), mu / decay_frames^2 |joint speeds|^2
+    (per frame).
+
+    Why the second term: with nothing seen, the acceleration prior alone carries a joint on at its last
+    speed for ever (a straight ramp costs nothing); with it, the speed decays with a time constant of
+    ``decay_frames`` frames (inf: no decay) and the joint comes to rest."""
+    import scipy.sparse as sp
+
+    F, nv = unseen.shape
+    L = sp.diags([np.ones(F - 2), -2 * np.ones(F - 2), np.ones(F - 2)], [0, 1, 2], shape=(F - 2, F))
+    D1 = sp.kron(sp.diags([-np.ones(F - 1), np.ones(F - 1)], [0, 1], shape=(F - 1, F)), sp.eye(nv))
+    speed = sp.diags(_beyond_sightings(unseen).reshape(-1) * (mu / decay_frames ** 2))
+    return (sp.kron(mu * (L.T @ L), sp.eye(nv)) + D1.T @ speed @ D1).tocsr()
+
+
+def _smoothed_objective(prior, q: np.ndarray, rn: np.ndarray, w: np.ndarray, delta: float | None) -> float:
+    """What :func:`_smooth_lm` minimises: robust residuals (norms rn (F, J), weights w, Huber threshold
+    delta) plus the motion prior q' prior q'."""
+    qf = q.reshape(-1)
+    return float((w * _huber(rn, delta)[0]).sum()) + float(qf @ (prior @ qf))
+
+
+def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
+               free: np.ndarray, free_view: np.ndarray, max_iter: int, tol: float, delta: float | None,
+               prior):
+    """Levenberg-Marquardt of :func:`_sequence_lm` for one shared view, plus a quadratic prior on the
+    motion, q' prior q' with q' the (F nv,) joint angles frame after frame (:func:`_motion_prior`),
+    that couples neighbouring frames.
+
+    The joint-angle block of the normal equations is then banded (two frames either side); it is
+    factored as a banded Cholesky (scipy.linalg.cholesky_banded) and the view eliminated by a
+    Schur complement, so an iteration stays linear in the number of frames. Same returns.
+    """
+    from scipy.linalg import cho_solve_banded, cholesky_banded
+
+    F, J, D = target.shape
+    nv, nc = robot.nv, 4 + D
+    N = F * nv
+    u = 3 * nv - 1  # upper bandwidth: frame f couples to f + 2
+    tz = np.nan_to_num(target)
+    frozen = (~free).reshape(-1)
+    prior_band = np.zeros((u + 1, N))
+    for d in range(u + 1):  # upper diagonals of the prior, in the banded layout
+        prior_band[u - d, d:] = prior.diagonal(d)
+
+    def band(Hqq, extra):
+        ab = prior_band.copy()
+        for a_ in range(nv):  # block diagonal: (f nv + a, f nv + b) for b >= a
+            for b_ in range(a_, nv):
+                ab[u - (b_ - a_), np.arange(F) * nv + b_] += Hqq[:, a_, b_]
+        ab[u] += extra
+        return ab
+
+    def evaluate(q, view):
+        pos, jac = robot.jacobians(q)
+        pred, y = view.apply(pos)
+        res = pred - tz
+        return pos, jac, y, res, _smoothed_objective(prior, q, np.linalg.norm(res, axis=-1), w, delta)
+
+    pos, jac, y, res, cost = evaluate(q, view)
+    lam, converged, it = 1e-4, False, 0
+    for it in range(1, max_iter + 1):
+        ww = w * _huber(np.linalg.norm(res, axis=-1), delta)[1]
+        Hqq, Hqc, gq, Hcc, gc = _normal_equations(view, jac, y, res, ww, free, free_view)
+        gq = gq.reshape(-1) + prior @ q.reshape(-1)
+        gq[frozen] = 0.0
+        Hx = Hqc.reshape(N, nc)
+        diag_q = np.einsum("fvv->fv", Hqq).reshape(-1) + prior.diagonal()
+        for _ in range(12):
+            ab = band(Hqq, lam * (diag_q + 1e-9 * diag_q.mean()) + frozen * 1e12)
+            sol = cho_solve_banded((cholesky_banded(ab, check_finite=False), False), np.column_stack([gq, Hx]),
+                                   check_finite=False)
+            Hc = Hcc[0] + np.diag(lam * (np.diag(Hcc[0]) + 1e-12) + (~free_view) * 1.0)
+            dc = -np.linalg.solve(Hc - Hx.T @ sol[:, 1:], gc[0] - Hx.T @ sol[:, 0]) * free_view
+            dq = (-(sol[:, 0] + sol[:, 1:] @ dc)).reshape(F, nv) * free
+            q_t, v_t = robot.integrate(q, dq), view.moved(dc[None])
+            trial = evaluate(q_t, v_t)
+            if trial[-1] <= cost:
+                break
+            lam *= 10
+        else:
+            converged = True
+            break
+        rel = (cost - trial[-1]) / max(cost, 1e-300)
+        q, view = q_t, v_t
+        pos, jac, y, res, cost = trial
+        lam = max(lam / 5, 1e-12)
+        if rel < tol or cost < 1e-24:
+            converged = True
+            break
+    return q, view, np.linalg.norm(res, axis=-1), pos, np.full(F, converged), it
+
+
+def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
+                 free: np.ndarray, free_view: np.ndarray, max_iter: int, tol: float, delta: float | None):
+    """Levenberg-Marquardt on all frames' joint angles and the view(s) against target (F, J, D).
+
+    The normal equations have one (nv x nv) block per frame and one small block per view; the views are
+    eliminated by a Schur complement (batched over frames), so an iteration costs one Pinocchio Jacobian
+    pass and small batched solves. When the frames are independent (the view fixed, or one view per
+    frame) each frame keeps its own damping and accepts its own steps, and converged frames drop out.
+    free (F, nv) / free_view (3 + 1 + D,) mask the directions allowed to move; a robust Huber loss
+    (IRLS) with threshold delta (None: squares). Returns (q, view, residual norms (F, J), base-frame
+    positions (F, J, 3), converged (F,), iterations).
+    """
+    F, J, D = target.shape
+    nv, nc = robot.nv, 4 + D
+    tz = np.nan_to_num(target)
+    eye_q, eye_c = np.eye(nv), np.eye(nc)
+    fixed_q, fixed_c = (~free).astype(float), (~free_view).astype(float)
+    independent = not free_view.any() or view.per_frame
+    q = q.copy()
+
+    def evaluate(qa, va, a):
+        pos, jac = robot.jacobians(qa)
+        pred, y = va.apply(pos)
+        res = pred - tz[a]
+        return pos, jac, y, res, (w[a] * _huber(np.linalg.norm(res, axis=-1), delta)[0]).sum(1)
+
+    pos, jac, y, res, cost = evaluate(q, view, np.arange(F))
+    lam = np.full(F, 1e-4)
+    active = np.ones(F, bool)
+    it = 0
+    for it in range(1, max_iter + 1):
+        a = np.flatnonzero(active)
+        va = view.take(a)
+        ww = w[a] * _huber(np.linalg.norm(res[a], axis=-1), delta)[1]
+        Hqq, Hqc, gq, Hcc, gc = _normal_equations(va, jac[a], y[a], res[a], ww, free[a], free_view)
+        Ca = len(va.S)
+        dq_diag = np.einsum("fvv->fv", Hqq)
+        dc_diag = np.einsum("cdd->cd", Hcc)
+        floor_q = 1e-6 * dq_diag.mean(1, keepdims=True) + 1e-30
+        for _ in range(1 if independent else 12):
+            la = lam[a]
+            Hq = Hqq + (la[:, None] * (dq_diag + floor_q) + fixed_q[a])[:, :, None] * eye_q
+            lc = la if Ca == len(a) else la[:1]
+            Hc = Hcc + (lc[:, None] * (dc_diag + 1e-12) + fixed_c)[:, :, None] * eye_c
+            Hq_inv = np.linalg.inv(Hq)
+            K = Hq_inv @ Hqc  # (F, nv, nc)
+            schur, rhs = Hc.copy(), gc.copy()
+            np.add.at(schur, va.cam_of, -np.einsum("fvc,fvd->fcd", Hqc, K))
+            np.add.at(rhs, va.cam_of, -np.einsum("fvc,fv->fc", K, gq))
+            dc = -np.linalg.solve(schur, rhs[..., None])[..., 0] * free_view
+            dq = -(np.einsum("fvu,fu->fv", Hq_inv, gq) + np.einsum("fvc,fc->fv", K, dc[va.cam_of])) * free[a]
+            q_t, v_t = robot.integrate(q[a], dq), va.moved(dc)
+            p_t, j_t, y_t, r_t, c_t = evaluate(q_t, v_t, a)
+            better = c_t <= cost[a] if independent else np.full(len(a), c_t.sum() <= cost[a].sum())
+            if better.any():
+                break
+            lam[a] *= 10
+        if not better.any() and not independent:
+            active[:] = False  # no step lowers the cost any more: a minimum to machine precision
+            break
+        b = a[better]
+        rel = (cost[b] - c_t[better]) / np.maximum(cost[b], 1e-300)
+        if not independent:
+            rel = np.full(len(b), (cost[b].sum() - c_t.sum()) / max(cost[b].sum(), 1e-300))
+        q[b], pos[b], jac[b], y[b], res[b], cost[b] = q_t[better], p_t[better], j_t[better], y_t[better], \
+            r_t[better], c_t[better]
+        view = view.put(a, v_t, better)
+        lam[b] = np.maximum(lam[b] / 5, 1e-12)
+        lam[a[~better]] *= 10
+        done = (rel < tol) | (cost[b] < 1e-24)
+        if independent:
+            active[b[done]] = False
+            active[a[~better][lam[a[~better]] > 1e10]] = False
+        elif done.all():
+            active[:] = False
+        if not active.any():
+            break
+    return q, view, np.linalg.norm(res, axis=-1), pos, ~active, it
+
+
+def _rms_per_frame(rn: np.ndarray, w: np.ndarray) -> np.ndarray:
+    wf = w.sum(1)
+    return np.where(wf > 0, np.sqrt((w * rn ** 2).sum(1) / np.maximum(wf, 1e-300)), np.nan)
+
+
+def _noise_sigma(rn: np.ndarray, w: np.ndarray) -> float:
+    """Pixel noise (per coordinate) from 2D residual norms rn (F, J): the median norm of the used
+    points over 1.1774, the median of a 2D Gaussian's norm in units of sigma; 0 when none is used."""
+    r = rn[w > 0]
+    return float(np.median(r)) / 1.1774 if r.size else 0.0
+
+
+def _robust_scale(rn: np.ndarray, w: np.ndarray, floor: float) -> float:
+    """Huber threshold: 3 robust standard deviations of the used residual norms."""
+    r = rn[w > 0]
+    return max(3.0 * 1.4826 * float(np.median(r)) if r.size else 0.0, floor)
