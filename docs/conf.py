@@ -40,7 +40,8 @@ napoleon_use_ivar = True  # attributes as fields of their class, not as separate
 
 autodoc_member_order = "bysource"
 autodoc_typehints = "description"
-autodoc_default_options = {"members": True, "undoc-members": False, "show-inheritance": False}
+autodoc_typehints_description_target = "documented"  # no type-only lists of undocumented __init__ fields
+autodoc_default_options = {"members": True}
 # Type hints name numpy's and the standard library's types; they are not part of this site.
 nitpicky = False
 
@@ -66,8 +67,8 @@ def _attributes_as_descriptions(app, what, name, obj, options, lines):
         if in_attributes:
             m = _ATTR_LINE.match(line)
             if m and not m.group(1):
-                lines[i] = m.group(2)
-                lines.insert(i + 1, "    " + m.group(3))
+                names = [n.strip() for n in m.group(2).split(",")]
+                lines[i:i + 1] = [x for n in names for x in (n, "    " + m.group(3))]
 
 
 def setup(app):

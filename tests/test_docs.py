@@ -51,3 +51,32 @@ def test_tutorial_runs_as_written(page, tmp_path, monkeypatch):
     namespace = {"__name__": "__tutorial__"}
     for code in python_blocks(page):
         exec(compile(code, str(page), "exec"), namespace)
+
+
+def test_format_examples_load():
+    """Every example file on the file-format page is read by chainspace as the page says."""
+    import numpy as np
+
+    import chainspace as cs
+
+    ex = DOCS / "formats" / "examples"
+    page = (DOCS / "formats" / "index.md").read_text(encoding="utf-8")
+    for path in ex.rglob("*"):
+        if path.is_file():
+            assert f"examples/{path.relative_to(ex).as_posix()}" in page or path.parent.name == "openpose", path
+    chains = {name: cs.load_chain(ex / name) for name in
+              ("two_link_arm.urdf", "quadruped.toml", "arm_and_hand.yaml", "pendulum.bvh", "leg.asf")}
+    assert chains["quadruped.toml"].rigid_links == (("left_hind_paw", "right_hind_paw"),)
+    np.testing.assert_allclose(chains["quadruped.toml"].rest_pose[0], [0, 0, 0.55])  # cm -> m
+    np.testing.assert_allclose(chains["arm_and_hand.yaml"].rest_pose[1], [0, 0, -0.3])  # y up, mm -> z up, m
+    assert cs.load_amc(chains["leg.asf"], ex / "leg.amc").shape == (2, 3, 3)
+    assert cs.load_bvh(ex / "pendulum.bvh")[1].shape == (3, 4, 3)
+
+    person = cs.shipped("coco17")
+    coco, conf, _ = cs.load_tracks(ex / "keypoints_coco.json", chain=person)
+    assert coco.shape == (2, 17, 2) and np.isnan(coco[1, 4]).all() and conf[1, 3] == 0.2
+    for name in ("openpose", "landmarks_mediapipe.json"):
+        tracks, _, _ = cs.load_tracks(ex / name, chain=person)
+        np.testing.assert_allclose(tracks, coco, atol=0.06)  # the same two frames, written by save_tracks
+    tracks, conf, names = cs.load_tracks(ex / "tracks.csv")
+    assert tracks.shape == (2, 4, 2) and names == ["base_link", "link_1", "link_2", "link_3"]
