@@ -16,8 +16,8 @@ environment from the package index or pip's cache):
 
 import subprocess
 import sys
-import zipfile
 import tarfile
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -31,18 +31,25 @@ def run(*args, **kwargs):
     return result.stdout
 
 
-@pytest.fixture(scope="module")
-def dist(tmp_path_factory):
+@pytest.mark.slow
+def test_sdist_and_wheel_build_install_and_import(tmp_path):
+    """One test, so that parallel workers (pytest-xdist) never build the package twice at once."""
     pytest.importorskip("build")
-    out = tmp_path_factory.mktemp("dist")
+    dist = build(tmp_path / "dist")
+    check_sdist(dist)
+    check_wheel(dist)
+    wheel_imports_in_a_fresh_venv(dist, tmp_path / "fresh")
+    wheel_works_outside_the_repository(dist, tmp_path / "outside")
+
+
+def build(out):
     run(sys.executable, "-m", "build", "--outdir", out, ROOT, cwd=ROOT)
     wheels, sdists = sorted(out.glob("chainspace-*.whl")), sorted(out.glob("chainspace-*.tar.gz"))
     assert len(wheels) == 1 and len(sdists) == 1, sorted(p.name for p in out.iterdir())
     return wheels[0], sdists[0]
 
 
-@pytest.mark.slow
-def test_sdist_carries_the_readme_licence_and_citation(dist):
+def check_sdist(dist):
     _, sdist = dist
     with tarfile.open(sdist) as tar:
         names = {n.split("/", 1)[1] for n in tar.getnames() if "/" in n}
@@ -51,8 +58,7 @@ def test_sdist_carries_the_readme_licence_and_citation(dist):
         assert name in names, f"{name} missing from {sdist.name}"
 
 
-@pytest.mark.slow
-def test_wheel_carries_descriptions_data_and_licence(dist):
+def check_wheel(dist):
     wheel, _ = dist
     names = set(zipfile.ZipFile(wheel).namelist())
     for name in ("chainspace/__init__.py", "chainspace/robots/__init__.py", "chainspace/robots/milling_arm.urdf",
@@ -66,9 +72,9 @@ def test_wheel_carries_descriptions_data_and_licence(dist):
     assert "chainspace = chainspace.cli:app" in zipfile.ZipFile(wheel).read(entry_points).decode()
 
 
-@pytest.mark.slow
-def test_wheel_installs_and_imports_in_a_fresh_venv(dist, tmp_path):
+def wheel_imports_in_a_fresh_venv(dist, tmp_path):
     wheel, _ = dist
+    tmp_path.mkdir()
     venv = tmp_path / "venv"
     run(sys.executable, "-m", "venv", venv)
     python = venv / ("Scripts/python.exe" if sys.platform == "win32" else "bin/python")
@@ -83,9 +89,9 @@ def test_wheel_installs_and_imports_in_a_fresh_venv(dist, tmp_path):
     assert Path(location).is_relative_to(venv), location
 
 
-@pytest.mark.slow
-def test_installed_wheel_works_outside_the_repository(dist, tmp_path):
+def wheel_works_outside_the_repository(dist, tmp_path):
     wheel, _ = dist
+    tmp_path.mkdir()
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
     code = (
