@@ -10,6 +10,7 @@ the tracks and the fitted robot drawn over them in the image; right: the fitted 
 from pathlib import Path
 
 import matplotlib
+import matplotlib.ticker
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -62,6 +63,7 @@ ax3.set_ylabel("y (m)")
 ax3.set_zlabel("z (m)")
 ax3.set_box_aspect(np.maximum(np.ptp(robot.reshape(-1, 3), axis=0), 1.0))
 ax3.view_init(elev=20, azim=-60)
+ax3.yaxis.set_major_locator(matplotlib.ticker.MaxNLocator(3))
 ax3.set_title("joint angles fitted to the URDF (3D)", fontsize=10)
 ax3.legend(loc="upper left", fontsize=8, bbox_to_anchor=(0.0, 0.95))
 fig.suptitle(f"chainspace: the milling arm from one camera, 60 frames; fitted robot 3D error {report.error_3d_mm:.1f} mm",
