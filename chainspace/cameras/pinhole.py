@@ -251,7 +251,7 @@ class PinholeCamera:
         except OSError as exc:
             raise CameraError(f"{path}: cannot read: {exc.strerror or exc}") from None
         text_head = head.decode("utf-8", errors="replace").lstrip("\ufeff").lstrip()
-        if suffix == ".json" or text_head.startswith("{"):
+        if suffix == ".json" or (suffix not in (".yaml", ".yml", ".xml") and text_head.startswith("{")):
             data = _read_json(path)
         elif suffix == ".xml" or text_head.startswith("<?xml") or text_head.startswith("%YAML") \
                 or "!!opencv-matrix" in text_head:
@@ -307,15 +307,20 @@ class PinholeCamera:
     def project(self, points_cam: Any) -> np.ndarray:
         """Pixels (..., 2) of points (..., 3) in the camera frame (x right, y down, z forward, metres).
 
-        Distortion is applied. Points at or behind the camera (z <= 0) or with NaN give NaN.
+        Distortion is applied, as ``cv2.projectPoints`` does. Points at or behind the camera (z <= 0)
+        or with NaN give NaN. Like OpenCV's, the distortion polynomial is only meaningful over the
+        calibrated field of view: far outside it, a strongly distorting lens model can fold points back.
         """
-        return self.project_with_jacobian(points_cam, jacobian=False)[0]
+        return self._project(points_cam, jacobian=False)[0]
 
-    def project_with_jacobian(self, points_cam: Any, jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    def project_with_jacobian(self, points_cam: Any) -> tuple[np.ndarray, np.ndarray]:
         """Pixels (..., 2) and their derivative with respect to the point, (..., 2, 3) pixels per metre.
 
         Analytic and vectorised; NaN (both) where :meth:`project` gives NaN.
         """
+        return self._project(points_cam, jacobian=True)
+
+    def _project(self, points_cam: Any, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
         P = _points(points_cam, 3, "points_cam")
         z = P[..., 2]
         ok = np.isfinite(P).all(axis=-1) & (z > 0)
@@ -357,28 +362,37 @@ class PinholeCamera:
         out = np.full(flat.shape, np.nan)
         if ok.any():
             cv2 = _cv2()
-            criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
             src = np.ascontiguousarray(flat[ok], dtype=np.float64).reshape(-1, 1, 2)
-            iterate = getattr(cv2, "undistortPointsIter", None)  # OpenCV 4; 5 folds it into undistortPoints
-            if iterate is not None:
-                xy = iterate(src, self.K, self.dist, None, None, criteria)
-            else:
-                xy = cv2.undistortPoints(src, self.K, self.dist, R=None, P=None, criteria=criteria)
-            out[ok] = self._polish(xy.reshape(-1, 2), (flat[ok] - [self.cx, self.cy]) / [self.fx, self.fy])
+            # OpenCV's fixed-point iteration (its default 5 steps) is the start; Newton on the model
+            # then reaches machine precision in a step or two, where more fixed-point steps are slow
+            # to converge under strong distortion and an EPS criterion costs a reprojection per step
+            start = cv2.undistortPoints(src, self.K, self.dist).reshape(-1, 2)
+            out[ok] = self._newton(start, (flat[ok] - [self.cx, self.cy]) / [self.fx, self.fy])
         return out.reshape(uv.shape)
 
-    def _polish(self, xy: np.ndarray, target: np.ndarray, steps: int = 3) -> np.ndarray:
-        """A few Newton steps on distort(xy) = target: OpenCV's fixed-point iteration stalls short of
-        machine precision under strong distortion; Newton from its answer converges in one or two."""
+    def _newton(self, xy: np.ndarray, target: np.ndarray, steps: int = 8) -> np.ndarray:
+        """Solve distort(xy) = target (normalised, (N, 2)) by Newton steps from ``xy``; a point whose
+        residual stops falling (past a fold of the model, or converged) keeps its best value."""
+        xy = xy.copy()
+        active = np.arange(len(xy))
+        r = _distortion(xy, self.dist, False)[0] - target
+        err = np.abs(r).max(axis=1)
         for _ in range(steps):
-            d, J = _distortion(xy, self.dist, True)
-            r = d - target
-            step = np.linalg.solve(J, r[..., None])[..., 0]
-            better = np.isfinite(step).all(axis=-1)
-            trial = np.where(better[:, None], xy - step, xy)
-            keep = np.linalg.norm(_distortion(trial, self.dist, False)[0] - target, axis=-1) \
-                < np.linalg.norm(r, axis=-1)
-            xy = np.where(keep[:, None], trial, xy)
+            active = active[err[active] > 1e-15]
+            if not len(active):
+                break
+            _, J = _distortion(xy[active], self.dist, True)
+            ra = r[active]
+            a, b, c, e = J[:, 0, 0], J[:, 0, 1], J[:, 1, 0], J[:, 1, 1]
+            with np.errstate(divide="ignore", invalid="ignore"):  # a singular J is rejected below
+                step = np.column_stack([e * ra[:, 0] - b * ra[:, 1], a * ra[:, 1] - c * ra[:, 0]]) / (a * e - b * c)[:, None]
+            trial = xy[active] - step
+            rt = _distortion(trial, self.dist, False)[0] - target[active]
+            et = np.abs(rt).max(axis=1)
+            better = np.isfinite(et) & (et < err[active])
+            idx = active[better]
+            xy[idx], r[idx], err[idx] = trial[better], rt[better], et[better]
+            active = idx
         return xy
 
     def scaled(self, factor: float) -> PinholeCamera:
