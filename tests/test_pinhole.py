@@ -8,6 +8,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import chainspace
 from chainspace import CameraError, ChainspaceError, PinholeCamera, as_camera
@@ -297,3 +299,26 @@ def test_missing_file():
         PinholeCamera.load("nowhere.yml")
     with pytest.raises(ChainspaceError, match="nowhere.yml"):
         as_camera(Path("nowhere.yml"))
+
+
+_json_values = st.recursive(
+    st.none() | st.booleans() | st.integers(-5, 2000) | st.floats(allow_nan=False, allow_infinity=False) | st.text(max_size=5),
+    lambda inner: st.lists(inner, max_size=10) | st.dictionaries(st.sampled_from(["rows", "cols", "data", "x"]), inner, max_size=4),
+    max_leaves=20)
+_keys = st.sampled_from(["K", "camera_matrix", "k", "dist", "D", "distortion_coefficients", "width", "height",
+                         "image_width", "image_height", "image_size", "fx", "fy", "cx", "cy", "distortion_model"])
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.dictionaries(_keys, _json_values, max_size=7), yaml_form=st.booleans())
+def test_any_json_or_yaml_content_loads_or_is_a_chainspace_error(tmp_path, data, yaml_form):
+    import yaml
+
+    path = tmp_path / ("c.yaml" if yaml_form else "c.json")
+    path.write_text(yaml.safe_dump(data) if yaml_form else json.dumps(data))
+    try:
+        cam = PinholeCamera.load(path)
+    except ChainspaceError as exc:
+        assert str(path) in str(exc)
+    else:
+        assert cam.fx > 0 and cam.fy > 0 and cam.dist.shape == (5,)

@@ -514,6 +514,8 @@ def _read_filestorage(path: Path) -> dict:
             raise CameraError(f"{path}: OpenCV cannot open it as a calibration file")
         root = fs.root()
         return {key: _node_value(root.getNode(key)) for key in root.keys()}
+    except cv2.error as exc:  # a matrix node OpenCV cannot decode
+        raise CameraError(_filestorage_message(path, exc)) from None
     finally:
         fs.release()
 
@@ -581,12 +583,15 @@ def _from_mapping(data: Mapping, source: object) -> PinholeCamera:
     wk, width = _lookup(data, _W_KEYS)
     hk, height = _lookup(data, _H_KEYS)
     if width is None and height is None and size is not None:
-        size = np.asarray(_unwrap(size, size_key, source), dtype=float).ravel()
+        try:
+            size = np.asarray(_unwrap(size, size_key, source), dtype=float).ravel()
+        except (TypeError, ValueError):
+            size = np.zeros(0)
         if size.size != 2:
-            raise CameraError(_where(f"{size_key!r} must be [width, height]", source))
+            raise CameraError(_where(f"{size_key!r} must be [width, height] in pixels", source))
         width, height = size.tolist()
     # ROS's message form stores 0 x 0 when the size is not known
-    if width == 0 and height == 0:
+    if is_real(width) and is_real(height) and width == 0 and height == 0:
         width = height = None
     dkey, dist = _lookup(data, _D_KEYS)
     dist = None if dist is None else _dist(_unwrap(dist, dkey, source), f"{source} ({dkey})" if source else dkey)
