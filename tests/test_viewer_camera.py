@@ -134,3 +134,23 @@ def test_html_without_a_pose_uses_the_fitted_weak_camera(tmp_path):
     np.testing.assert_allclose(seg[0], Rup @ (-R.T @ t), atol=1e-4)
     with pytest.raises(CameraError, match="camera_pose"):
         write_html(tmp_path / "w.html", poses, chain=chain, camera=CAM)
+
+
+def test_robot_view_draws_the_frustum_in_the_base_frame(tmp_path):
+    pytest.importorskip("pinocchio")
+    descriptions = pytest.importorskip("chainspace.io.descriptions")
+    fit_mod = pytest.importorskip("chainspace.robot.fit")
+    chain = descriptions.shipped("milling_arm")
+    robot = fit_mod.RobotKinematics(chain.metadata["urdf_path"], chain)
+    F = 5
+    q = robot.clip(robot.q_rest + 0.3 * np.sin(np.arange(F)[:, None] / 3 + np.arange(robot.nq)))
+    X = robot.positions(q)
+    fit = SimpleNamespace(urdf_path=chain.metadata["urdf_path"], q=q, positions=X, chain=chain,
+                          rotation=np.eye(3), translation=np.zeros(3), scale=1.0)
+    R, t = np.array([[0.0, -1, 0], [0, 0, -1], [1, 0, 0]]), np.array([0.0, 1.0, 5.0])  # 5 m along the base's x
+    html = write_html(tmp_path / "robot.html", fit=fit, camera=CAMERA, camera_pose=(R, t)).read_text()
+    seg = _frustum_points(_commands(html))
+    size = float(np.ptp(X, axis=1).max())
+    expected = frustum_corners(CAMERA, (R, t), 0.3 * size)
+    np.testing.assert_allclose(seg[0], expected[0], atol=1e-5)
+    np.testing.assert_allclose(seg[1:8:2], expected[1:], atol=1e-5)
