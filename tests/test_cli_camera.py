@@ -12,7 +12,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
-from chainspace import CameraError, ChainspaceError, PinholeCamera
+from chainspace import ChainspaceError, PinholeCamera
 from chainspace.chain import KinematicChain
 from chainspace.cli import _camera_option, app
 

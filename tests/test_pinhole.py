@@ -301,9 +301,12 @@ def test_missing_file():
         as_camera(Path("nowhere.yml"))
 
 
+_scalars = (st.none() | st.booleans() | st.integers(-5, 2000) | st.floats(allow_nan=False, allow_infinity=False)
+            | st.text(max_size=5))
 _json_values = st.recursive(
-    st.none() | st.booleans() | st.integers(-5, 2000) | st.floats(allow_nan=False, allow_infinity=False) | st.text(max_size=5),
-    lambda inner: st.lists(inner, max_size=10) | st.dictionaries(st.sampled_from(["rows", "cols", "data", "x"]), inner, max_size=4),
+    _scalars,
+    lambda inner: st.lists(inner, max_size=10)
+    | st.dictionaries(st.sampled_from(["rows", "cols", "data", "x"]), inner, max_size=4),
     max_leaves=20)
 _keys = st.sampled_from(["K", "camera_matrix", "k", "dist", "D", "distortion_coefficients", "width", "height",
                          "image_width", "image_height", "image_size", "fx", "fy", "cx", "cy", "distortion_model"])

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import CameraError, DescriptionNotFoundError, is_real
+from ..errors import CameraError, DescriptionNotFoundError, is_real, located
 from ..io.results import atomic_write, check_writable, write_json
 
 __all__ = ["PinholeCamera", "as_camera", "CameraError"]
@@ -56,18 +56,14 @@ def _matrix(values: Any, what: str, source: object = None) -> np.ndarray:
     try:
         K = np.asarray(values, dtype=float)
     except (TypeError, ValueError):
-        raise CameraError(_where(f"{what} is not a numeric matrix", source)) from None
+        raise CameraError(located(f"{what} is not a numeric matrix", source)) from None
     if K.size == 9:
         K = K.reshape(3, 3)
     if K.shape != (3, 3):
-        raise CameraError(_where(f"{what} has shape {K.shape}: expected (3, 3) (or 9 numbers)", source))
+        raise CameraError(located(f"{what} has shape {K.shape}: expected (3, 3) (or 9 numbers)", source))
     if not np.all(np.isfinite(K)):
-        raise CameraError(_where(f"{what} has non-finite entries", source))
+        raise CameraError(located(f"{what} has non-finite entries", source))
     return K
-
-
-def _where(message: str, source: object) -> str:
-    return message if source is None else f"{source}: {message}"
 
 
 def _size(width: Any, height: Any, source: object = None) -> tuple[int | None, int | None]:
@@ -76,11 +72,11 @@ def _size(width: Any, height: Any, source: object = None) -> tuple[int | None, i
     out = []
     for name, v in (("width", width), ("height", height)):
         if v is None:
-            raise CameraError(_where(f"image {name} is missing: give both width and height or neither", source))
+            raise CameraError(located(f"image {name} is missing: give both width and height or neither", source))
         if isinstance(v, np.ndarray) and v.size == 1:
             v = v.item()
         if not is_real(v) or float(v) != int(v) or v <= 0:
-            raise CameraError(_where(f"image {name} must be a positive whole number of pixels, not {v!r}", source))
+            raise CameraError(located(f"image {name} must be a positive whole number of pixels, not {v!r}", source))
         out.append(int(v))
     return out[0], out[1]
 
@@ -187,16 +183,16 @@ class PinholeCamera:
     def _from_matrix(cls, K: Any, dist: Any, width: Any, height: Any, source: object) -> PinholeCamera:
         K = _matrix(K, "the camera matrix", source)
         if K[2, 2] <= 0 or abs(K[2, 0]) > 1e-12 * K[2, 2] or abs(K[2, 1]) > 1e-12 * K[2, 2]:
-            raise CameraError(_where(f"the camera matrix's last row must be (0, 0, 1), not {K[2].tolist()}", source))
+            raise CameraError(located(f"the camera matrix's last row must be (0, 0, 1), not {K[2].tolist()}", source))
         K = K / K[2, 2]
         if abs(K[1, 0]) > 1e-9 * abs(K[1, 1]) or abs(K[0, 1]) > 1e-9 * abs(K[0, 0]):
-            raise CameraError(_where("the camera matrix has skew or is not upper triangular; "
+            raise CameraError(located("the camera matrix has skew or is not upper triangular; "
                                      "only zero-skew pinhole cameras are supported", source))
         w, h = _size(width, height, source)
         try:
             return cls(K[0, 0], K[1, 1], K[0, 2], K[1, 2], np.zeros(5) if dist is None else dist, w, h)
         except CameraError as exc:
-            raise CameraError(_where(str(exc), source)) from None
+            raise CameraError(located(str(exc), source)) from None
 
     @classmethod
     def from_fov(cls, width: int, height: int, fov_deg: float, axis: str = "horizontal") -> PinholeCamera:
@@ -385,7 +381,8 @@ class PinholeCamera:
             ra = r[active]
             a, b, c, e = J[:, 0, 0], J[:, 0, 1], J[:, 1, 0], J[:, 1, 1]
             with np.errstate(divide="ignore", invalid="ignore"):  # a singular J is rejected below
-                step = np.column_stack([e * ra[:, 0] - b * ra[:, 1], a * ra[:, 1] - c * ra[:, 0]]) / (a * e - b * c)[:, None]
+                det = (a * e - b * c)[:, None]
+                step = np.column_stack([e * ra[:, 0] - b * ra[:, 1], a * ra[:, 1] - c * ra[:, 0]]) / det
             trial = xy[active] - step
             rt = _distortion(trial, self.dist, False)[0] - target[active]
             et = np.abs(rt).max(axis=1)
@@ -439,17 +436,17 @@ def _dist(values: Any, source: object = None) -> np.ndarray:
     try:
         d = np.asarray(values, dtype=float).ravel()
     except (TypeError, ValueError):
-        raise CameraError(_where(f"distortion coefficients are not numbers: {values!r}", source)) from None
+        raise CameraError(located(f"distortion coefficients are not numbers: {values!r}", source)) from None
     if d.size in (0, 4):
         d = np.concatenate([d, np.zeros(5 - d.size)])
     elif d.size > 5 and not np.any(d[5:]):
         d = d[:5]
     if d.size != 5:
-        raise CameraError(_where(
+        raise CameraError(located(
             f"{d.size} distortion coefficients: expected 4 or 5 (k1, k2, p1, p2[, k3]); the rational and "
             "thin-prism terms of OpenCV's longer vectors are not supported", source))
     if not np.all(np.isfinite(d)):
-        raise CameraError(_where("distortion coefficients must be finite", source))
+        raise CameraError(located("distortion coefficients must be finite", source))
     d = d.copy()
     d.setflags(write=False)  # the camera is immutable; so is its distortion
     return d
@@ -563,13 +560,13 @@ def _unwrap(value: Any, key: str, source: object) -> Any:
     """ROS's ``{rows, cols, data}`` (and FileStorage-like maps) as an array shaped rows x cols."""
     if isinstance(value, Mapping):
         if "data" not in value:
-            raise CameraError(_where(f"{key!r} has no 'data'", source))
+            raise CameraError(located(f"{key!r} has no 'data'", source))
         try:
             data = np.asarray(value["data"], dtype=float)
             if "rows" in value and "cols" in value:
                 data = data.reshape(int(value["rows"]), int(value["cols"]))
         except (TypeError, ValueError):
-            raise CameraError(_where(f"{key!r}: data does not fit rows x cols or is not numeric", source)) from None
+            raise CameraError(located(f"{key!r}: data does not fit rows x cols or is not numeric", source)) from None
         return data
     return value
 
@@ -577,7 +574,7 @@ def _unwrap(value: Any, key: str, source: object) -> Any:
 def _from_mapping(data: Mapping, source: object) -> PinholeCamera:
     model = data.get("distortion_model")
     if isinstance(model, str) and model.strip().lower() not in _PLUMB_BOB:
-        raise CameraError(_where(f"distortion_model {model!r} is not supported: only plumb_bob "
+        raise CameraError(located(f"distortion_model {model!r} is not supported: only plumb_bob "
                                  "(OpenCV's k1, k2, p1, p2, k3)", source))
     size_key, size = _lookup(data, _SIZE_KEYS)
     wk, width = _lookup(data, _W_KEYS)
@@ -588,7 +585,7 @@ def _from_mapping(data: Mapping, source: object) -> PinholeCamera:
         except (TypeError, ValueError):
             size = np.zeros(0)
         if size.size != 2:
-            raise CameraError(_where(f"{size_key!r} must be [width, height] in pixels", source))
+            raise CameraError(located(f"{size_key!r} must be [width, height] in pixels", source))
         width, height = size.tolist()
     # ROS's message form stores 0 x 0 when the size is not known
     if is_real(width) and is_real(height) and width == 0 and height == 0:
@@ -606,14 +603,14 @@ def _from_mapping(data: Mapping, source: object) -> PinholeCamera:
         parts["fy"] = parts["fx"]  # one focal length means square pixels
     missing = [n for n, v in parts.items() if v is None]
     if missing:
-        raise CameraError(_where(
+        raise CameraError(located(
             f"no camera matrix: expected a key {' / '.join(repr(k) for k in _K_KEYS[:4])} or the numbers "
             f"fx, fy, cx, cy (missing {', '.join(missing)})", source))
     try:
         return PinholeCamera(parts["fx"], parts["fy"], parts["cx"], parts["cy"],
                              np.zeros(5) if dist is None else dist, *_size(width, height, source))
     except CameraError as exc:
-        raise CameraError(_where(str(exc), source)) from None
+        raise CameraError(located(str(exc), source)) from None
 
 
 # ----------------------------------------------------------------------------------- as_camera
