@@ -208,6 +208,7 @@ def test_camera_is_an_immutable_value():
     assert cam == PinholeCamera.from_matrix(K.tolist(), list(DIST), 640, 480)
     assert len({cam, PinholeCamera.from_matrix(K, DIST, 640, 480)}) == 1
     assert "fx=800.5" in repr(cam)
+    assert PinholeCamera(500.0, 500.0, 1.0, 1.0, None) == PinholeCamera(500.0, 500.0, 1.0, 1.0, [])
 
 
 def test_as_camera():

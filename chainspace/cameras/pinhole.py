@@ -92,7 +92,8 @@ class PinholeCamera:
     cx, cy : float
         Principal point, pixels (pixel centres at integers, as in OpenCV).
     dist : array-like, optional
-        Distortion ``(k1, k2, p1, p2, k3)``, dimensionless; 4 coefficients mean ``k3 = 0``. Default none.
+        Distortion ``(k1, k2, p1, p2, k3)``, dimensionless; 4 coefficients mean ``k3 = 0``; None or
+        empty means none (the default).
     width, height : int, optional
         Image size, pixels; both or neither.
     """
@@ -433,6 +434,8 @@ def _distortion(xy: np.ndarray, dist: np.ndarray, jacobian: bool) -> tuple[np.nd
 def _dist(values: Any, source: object = None) -> np.ndarray:
     """Read-only (5,) distortion ``(k1, k2, p1, p2, k3)``; 4 coefficients pad k3 = 0, and longer vectors
     (OpenCV's 8, 12, 14) are accepted only when everything past k3 is zero."""
+    if values is None:
+        values = ()
     try:
         d = np.asarray(values, dtype=float).ravel()
     except (TypeError, ValueError):
