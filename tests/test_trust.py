@@ -121,3 +121,132 @@ def _fake_fit(urdf: Path, F: int = 5):
     return SimpleNamespace(urdf_path=str(urdf), q=q, positions=pos, chain=chain, rotation=np.eye(3),
                            translation=np.zeros(3), scale=1.0, joint_names=list(chain.metadata["joint_names"]),
                            observable=np.ones(q.shape[1], bool))
+
+
+# ---------------------------------------------------------------------------------------- 4. command line
+def _one_line_error(result, code: int = 2) -> str:
+    assert result.exit_code == code, (result.exit_code, result.output)
+    err = result.stderr.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in result.output, err
+    return err
+
+
+def test_version():
+    from chainspace import __version__
+
+    result = runner.invoke(app, ["--version"])
+    assert result.exit_code == 0 and result.stdout.strip() == f"chainspace {__version__}"
+
+
+@pytest.mark.parametrize("args", [
+    ["reconstruct", "walk.csv", "-c", "human17", "-o", "out", "--fps", "-30"],
+    ["reconstruct", "walk.csv", "-c", "human17", "-o", "out", "--fps", "nan"],
+    ["reconstruct", "walk.csv", "-c", "human17", "-o", "out", "--image-size", "640", "0"],
+    ["view", "result.npz", "--fps", "0"],
+    ["fit", "rec.npz", "--fps", "inf"],
+])
+def test_non_positive_or_non_finite_numbers_exit_2(tmp_path, args):
+    result = runner.invoke(app, [a if not a.endswith((".csv", ".npz")) and a != "out" else str(tmp_path / a)
+                                 for a in args])
+    err = _one_line_error(result)
+    assert "must be a finite number > 0" in err and ("--fps" in err or "--image-size" in err)
+    assert not (tmp_path / "out").exists()
+
+
+def _milling_tracks(tmp_path: Path, extra: dict[str, np.ndarray] | None = None, F: int = 6) -> Path:
+    from chainspace.io.descriptions import shipped
+    from chainspace.io.tracks import save_tracks
+
+    chain = shipped("milling_arm")
+    names = list(chain.joints) + list(extra or {})
+    pts = np.concatenate([chain.rest_pose] + [np.asarray(v, float)[None] for v in (extra or {}).values()])
+    tracks = np.tile(100 * pts[None, :, :2], (F, 1, 1)) + np.arange(F)[:, None, None]
+    save_tracks(tmp_path / "tracks.csv", tracks, names)
+    return tmp_path / "tracks.csv"
+
+
+class _Stop(Exception):
+    pass
+
+
+def test_fit_passes_fps_and_extra_frames(tmp_path, monkeypatch):
+    """`fit --fps 100 --extra-frame ...`: the chain gets the tracked tool point, the fit the frame rate."""
+    from types import SimpleNamespace
+
+    import chainspace.reconstruction.pipeline as pipeline
+    import chainspace.robot.fit as robot_fit
+    from chainspace.errors import TrackError
+
+    seen = {}
+
+    def fake_reconstruct(W, chain, *args, **kwargs):
+        seen["chain"], seen["W"] = chain, W
+        return SimpleNamespace(poses=np.zeros((len(W), chain.n_joints, 3)), chain=chain)
+
+    def fake_fit(rec, urdf=None, **kwargs):
+        seen["fit"] = kwargs
+        raise TrackError("stopped here by the test")
+
+    monkeypatch.setattr(pipeline, "reconstruct", fake_reconstruct)
+    monkeypatch.setattr(robot_fit, "fit_joint_angles", fake_fit)
+    tracks = _milling_tracks(tmp_path, {"probe": [0.1, 0.2, 0.3]})
+    result = runner.invoke(app, ["fit", str(tracks), "--urdf", "milling_arm", "-o", str(tmp_path / "fit"),
+                                 "--fps", "100", "--extra-frame", "probe=link_6:0,0,0.25"])
+    assert "stopped here by the test" in _one_line_error(result)
+    assert seen["fit"]["fps"] == 100.0
+    chain = seen["chain"]
+    assert "probe" in chain.joints and chain.metadata["extra_frames"]["probe"] == ("link_6", [0.0, 0.0, 0.25])
+    assert np.isfinite(seen["W"][:, chain.joint_index("probe")]).all()  # its track was read
+
+
+@pytest.mark.parametrize("spec", ["probe", "probe=link_6", "probe=link_6:0,0", "=link_6:0,0,1",
+                                  "probe=link_6:0,x,1", "probe=nolink:0,0,1"])
+def test_bad_extra_frame_exits_2(tmp_path, spec):
+    tracks = _milling_tracks(tmp_path)
+    result = runner.invoke(app, ["reconstruct", str(tracks), "-c", "milling_arm", "-o", str(tmp_path / "o"),
+                                 "--extra-frame", spec])
+    err = _one_line_error(result)
+    assert ("extra frame" in err or "--extra-frame" in err) and ("probe" in err or "link_6" in err)
+
+
+def test_extra_frame_needs_a_urdf_chain(tmp_path):
+    result = runner.invoke(app, ["reconstruct", str(tmp_path / "w.csv"), "-c", "human17", "-o",
+                                 str(tmp_path / "o"), "--extra-frame", "tip=lhand:0,0,0.1"])
+    assert "--extra-frame needs a URDF chain" in _one_line_error(result)
+
+
+def test_unexpected_errors_exit_3_not_1(tmp_path, monkeypatch):
+    """1 means "not converged or failed validation"; a bug must not pass for that."""
+    import chainspace.reconstruction.pipeline as pipeline
+
+    def boom(*args, **kwargs):
+        raise RuntimeError("something\nbroke")
+
+    monkeypatch.setattr(pipeline, "reconstruct", boom)
+    tracks = _milling_tracks(tmp_path)
+    result = runner.invoke(app, ["reconstruct", str(tracks), "-c", "milling_arm", "-o", str(tmp_path / "o")])
+    err = _one_line_error(result, 3)
+    assert "internal error: RuntimeError: something broke" in err
+
+
+def test_messages_speak_the_command_line(tmp_path):
+    from chainspace.cli import _for_the_shell
+
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "reconstruction.npz").write_bytes(b"x")
+    result = runner.invoke(app, ["reconstruct", str(tmp_path / "w.csv"), "-c", "human17", "-o", str(out)])
+    err = _one_line_error(result)
+    assert "--overwrite" in err and "overwrite=True" not in err
+    assert "chain.subset" not in _for_the_shell("joint 'a' is never seen; drop it with chain.subset(...) or "
+                                                "provide its track")
+    assert "--urdf" in _for_the_shell("fit_joint_angles needs the robot's URDF: pass urdf=PATH or a chain made "
+                                      "by chainspace.from_urdf")
+
+
+def test_bench_without_its_data_exits_2(monkeypatch):
+    benchmark = pytest.importorskip("chainspace.bench.reconstruction")
+    monkeypatch.setattr(benchmark, "run_benchmark", lambda *, quick, progress: [])
+    result = runner.invoke(app, ["bench", "--suite", "reconstruction", "--quick"])
+    assert result.exit_code == 2 and "none of its data" in result.stderr
+    assert "|" not in result.stdout  # no empty table
