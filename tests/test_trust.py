@@ -250,3 +250,47 @@ def test_bench_without_its_data_exits_2(monkeypatch):
     result = runner.invoke(app, ["bench", "--suite", "reconstruction", "--quick"])
     assert result.exit_code == 2 and "none of its data" in result.stderr
     assert "|" not in result.stdout  # no empty table
+
+
+# ---------------------------------------------------------------------------------------- 5. input checks
+def test_csv_cut_short_at_a_line_boundary_names_file_and_frame(tmp_path):
+    from chainspace.errors import TrackError
+    from chainspace.io.tracks import load_tracks, save_tracks
+
+    names = ["a", "b", "c", "d"]
+    tracks = np.arange(5 * 4 * 2, dtype=float).reshape(5, 4, 2)
+    save_tracks(tmp_path / "t.csv", tracks, names)
+    lines = (tmp_path / "t.csv").read_text().splitlines(keepends=True)
+    (tmp_path / "cut.csv").write_text("".join(lines[:-2]))  # frame 4 keeps a and b only
+    with pytest.raises(TrackError, match=r"cut\.csv:\d+: the last frame \(4\) has rows for only 2 of the 4 "
+                                         r"joints \(no row for c, d\)"):
+        load_tracks(tmp_path / "cut.csv")
+    # the whole file, and a joint missing in every frame (a tracker that never saw it), are fine
+    P, _, _ = load_tracks(tmp_path / "t.csv")
+    assert P.shape == (5, 4, 2)
+    (tmp_path / "three.csv").write_text("".join(ln for ln in lines if ",d," not in ln))
+    assert load_tracks(tmp_path / "three.csv")[0].shape == (5, 3, 2)
+    # through the command line: exit 2, one line naming the file
+    result = runner.invoke(app, ["reconstruct", str(tmp_path / "cut.csv"), "-c", "human17", "-o",
+                                 str(tmp_path / "o")])
+    assert "cut.csv" in _one_line_error(result) and "frame (4)" in result.stderr
+
+
+@pytest.mark.parametrize("suffix", [".npy", ".npz"])
+def test_nameless_array_of_the_wrong_joint_count_names_both_counts(tmp_path, suffix):
+    from chainspace.errors import TrackError
+    from chainspace.io.datasets import human17
+    from chainspace.io.tracks import load_tracks
+
+    chain = human17()
+    bad = np.zeros((10, 15, 2))
+    path = tmp_path / f"t{suffix}"
+    np.save(path, bad) if suffix == ".npy" else np.savez(path, tracks=bad)
+    with pytest.raises(TrackError, match=f"15 joints .* has {chain.n_joints}"):
+        load_tracks(path, chain=chain)
+    # the right count without names: taken in the chain's order
+    good = np.random.default_rng(0).normal(size=(10, chain.n_joints, 2))
+    np.save(path, good) if suffix == ".npy" else np.savez(path, tracks=good)
+    P, _, names = load_tracks(path, chain=chain)
+    np.testing.assert_allclose(P, good)
+    assert names == list(chain.joints)
