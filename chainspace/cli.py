@@ -581,6 +581,8 @@ def demo(
                 status.update(message.strip())
 
         summary = run_demo(out, overwrite=overwrite, progress=progress, seed=seed)
+        progress("writing the viewer (viewer.html) and the plots (joint_angles.png, convergence.png, "
+                 "joint_errors.png)")
         status.update("writing the viewer and the plots")
         for p in _demo_extras(out, summary, overwrite):
             _say(f"wrote {p}")

@@ -294,3 +294,88 @@ def test_nameless_array_of_the_wrong_joint_count_names_both_counts(tmp_path, suf
     P, _, names = load_tracks(path, chain=chain)
     np.testing.assert_allclose(P, good)
     assert names == list(chain.joints)
+
+
+# ---------------------------------------------------------------------------------------- 6. clear outputs
+def test_relative_joints_are_plotted_relative_to_frame_0(tmp_path, monkeypatch):
+    from types import SimpleNamespace
+
+    from chainspace.view import plots
+
+    figures = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path, overwrite: figures.append(fig) or Path(path))
+    F = 30
+    truth = np.stack([0.45 + 0.3 * np.sin(np.arange(F) / 5), 0.2 * np.cos(np.arange(F) / 7)], axis=1)
+    q = truth.copy()
+    q[:, 0] -= truth[0, 0]  # the first joint is seen only relative to frame 0: it starts at 0
+    fit = SimpleNamespace(q=q, joint_names=["a1", "a2"], observable=np.array([False, True]),
+                          relative=np.array([True, False]))
+    plots.plot_joint_angles(fit, truth, tmp_path / "q.png")
+    ax1, ax2 = [ax for ax in figures[0].axes if ax.get_visible()][:2]
+    assert "relative to frame 0" in ax1.get_ylabel() and "relative to frame 0" not in ax2.get_ylabel()
+    labels = [ln.get_label() for ln in ax1.get_lines()]
+    assert labels == ["truth (relative to frame 0)", "fitted (relative to frame 0)"]
+    t_line, f_line = ax1.get_lines()
+    np.testing.assert_allclose(t_line.get_ydata(), f_line.get_ydata(), atol=1e-9)  # the curves agree
+    assert t_line.get_ydata()[0] == 0.0
+    np.testing.assert_allclose(ax2.get_lines()[0].get_ydata(), np.degrees(truth[:, 1]))  # absolute as before
+
+
+def test_bone_lengths_robot_from_urdf_apart_from_scale_free_reconstruction():
+    from types import SimpleNamespace
+
+    from chainspace.chain import KinematicChain
+    from chainspace.robot.validation import BONES_NOTE, ValidationReport, _bone_errors
+
+    chain = KinematicChain(["a", "b", "c"], [("a", "b"), ("b", "c")], name="arm")
+    robot = SimpleNamespace(q_rest=np.zeros(1), positions=lambda q: np.array([[[0, 0, 0], [1, 0, 0], [1, 3, 0]]],
+                                                                               dtype=float))
+    poses = np.tile(np.array([[0, 0, 0], [2, 0, 0], [2, 2, 0]], dtype=float), (4, 1, 1))  # 2 and 2: scale-free
+    bones = _bone_errors(robot, SimpleNamespace(chain=chain, input_poses=poses, scale=1.0))
+    assert [b["urdf_share_pct"] for b in bones] == pytest.approx([25.0, 75.0])
+    assert [b["reconstruction_share_pct"] for b in bones] == pytest.approx([50.0, 50.0])
+    assert [b["share_error_pct"] for b in bones] == pytest.approx([100.0, -100 / 3])
+    report = ValidationReport(joints=[], bones=bones, reprojection_rms_px=None, error_3d_mm=None,
+                              error_3d_pct_reach=None, reach_mm=4000.0, thresholds={}, checks={})
+    table = report.table()
+    assert BONES_NOTE in table and "URDF (metres" in BONES_NOTE and "fixes no scale" in BONES_NOTE
+    assert "| bone | fitted robot (URDF) m | robot share % | reconstruction share % (scale-free) |" in table
+    assert "| a-b | 1.0000 | 25.0 | 50.0 | +100.0 |" in table
+    assert report.to_dict()["bones_note"] == BONES_NOTE
+
+
+def test_fit_summary_mm_fields_hold_millimetres_on_the_robot(tmp_path):
+    from types import SimpleNamespace
+
+    from chainspace.chain import KinematicChain
+    from chainspace.io.results import save_results
+
+    F = 4
+    chain = KinematicChain(["a", "b"], [("a", "b")], name="arm").with_rest_pose(np.eye(3)[:2])
+    fit = SimpleNamespace(q=np.zeros((F, 2)), joint_names=["j1", "j2"], observable=np.array([False, True]),
+                          relative=np.array([True, False]), positions=np.zeros((F, 2, 3)),
+                          residual_3d=np.full(F, 0.004), residual_px=None, converged=np.ones(F, bool),
+                          scale=2.0, rotation=np.eye(3), translation=np.zeros(3), cameras=None,
+                          translations_2d=None, chain=chain, urdf_path="arm.urdf", message="ok", n_iter=1)
+    save_results(fit, tmp_path)
+    summary = json.loads((tmp_path / "joint_angles.json").read_text())
+    # 0.004 reconstruction units at a scale of 2 (reconstruction units per robot metre): 2 mm on the robot
+    assert summary["residual_3d_mm"]["mean"] == pytest.approx(2.0)
+    assert summary["residual_3d_reconstruction_units"]["mean"] == pytest.approx(0.004)
+    assert summary["relative_to_frame_0"] == ["j1"]
+
+
+def test_progress_lines_for_long_stages_are_plain_and_timed():
+    import time
+
+    from chainspace.demo import _Ticker
+
+    lines = []
+    with _Ticker(lines.append, "fitting 300 frames", every=0.05, expected_s=100.0):
+        time.sleep(0.18)
+    assert len(lines) >= 3
+    assert all(ln.startswith("      ... fitting 300 frames: ") for ln in lines)
+    assert "s elapsed, about" in lines[0] and "s left" in lines[0]
+    assert lines[-1].startswith("      ... fitting 300 frames: done in ")
+    with _Ticker(False, "quiet", every=0.01):  # progress=False: no thread, no output
+        time.sleep(0.03)
