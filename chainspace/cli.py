@@ -89,6 +89,8 @@ _SHELL_ADVICE = (
      "remove it from the chain description (or give its track)"),
     ("pass urdf=PATH or a chain made by chainspace.from_urdf", "give --urdf"),
     ("pass urdf=PATH", "give --urdf"),
+    ("pass format= one of", "give --format, one of"),
+    ("pass init_pose (J, 3)", "give --init-pose (J, 3)"),
 )
 
 

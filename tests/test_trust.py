@@ -379,3 +379,31 @@ def test_progress_lines_for_long_stages_are_plain_and_timed():
     assert lines[-1].startswith("      ... fitting 300 frames: done in ")
     with _Ticker(False, "quiet", every=0.01):  # progress=False: no thread, no output
         time.sleep(0.03)
+
+
+def test_track_format_advice_names_the_option(tmp_path):
+    (tmp_path / "walk.txt").write_text("x")
+    result = runner.invoke(app, ["reconstruct", str(tmp_path / "walk.txt"), "-c", "human17", "-o",
+                                 str(tmp_path / "o")])
+    err = _one_line_error(result)
+    assert "give --format, one of" in err and "format=" not in err
+
+
+def test_view_of_a_robot_with_a_missing_mesh_warns_and_writes(tmp_path, monkeypatch):
+    """`chainspace view` used to die with 'Mesh package://... could not be found' (exit 1, "not
+    converged"); now it draws a primitive, warns on one line and exits 0."""
+    from chainspace.io.results import save_results
+
+    monkeypatch.delenv("ROS_PACKAGE_PATH", raising=False)
+    urdf = _package(tmp_path, "package://my_robot/meshes/base.stl")
+    fit = _fake_fit(urdf, F=5)
+    F = len(fit.q)
+    fit.__dict__.update(residual_3d=np.zeros(F), residual_px=None, converged=np.ones(F, bool), cameras=None,
+                        translations_2d=None, message="ok", n_iter=1)
+    save_results(fit, tmp_path / "fit")
+    result = runner.invoke(app, ["view", str(tmp_path / "fit" / "joint_angles.npz"), "--html",
+                                 str(tmp_path / "v.html")])
+    assert result.exit_code == 0, result.output
+    warning = [ln for ln in result.stderr.splitlines() if "warning" in ln]
+    assert len(warning) == 1 and "no_such_package_xyz/meshes/arm.stl" in warning[0]
+    assert (tmp_path / "v.html").stat().st_size > 100_000
