@@ -125,6 +125,12 @@ def _positive(option: str, value: float | None) -> None:
         raise TrackError(f"{option} must be a finite number > 0, not {value}")
 
 
+def _seed(value: int) -> None:
+    """A random seed is an integer >= 0 (numpy's rule), else exit 2 naming --seed."""
+    if value < 0:
+        raise TrackError(f"--seed must be an integer >= 0, not {value}")
+
+
 def _parse_extra_frames(specs: list[str] | None) -> dict[str, tuple[str, list[float]]] | None:
     """``NAME=LINK:x,y,z`` (metres, in LINK's frame) -> ``{NAME: (LINK, [x, y, z])}`` for from_urdf."""
     if not specs:
@@ -302,6 +308,7 @@ def reconstruct(
     from .io.tracks import load_tracks
 
     _positive("--fps", fps)
+    _seed(seed)
     for v in image_size or ():
         _positive("--image-size", v)
     extras = _parse_extra_frames(extra_frame)
@@ -575,6 +582,7 @@ def demo(
     standalone HTML viewer (viewer.html). Exit code 1 if validation failed."""
     from .demo import run_demo
 
+    _seed(seed)
     console = _console()
     with console.status("running the demo") as status:
         def progress(message: str) -> None:

@@ -407,3 +407,22 @@ def test_view_of_a_robot_with_a_missing_mesh_warns_and_writes(tmp_path, monkeypa
     warning = [ln for ln in result.stderr.splitlines() if "warning" in ln]
     assert len(warning) == 1 and "no_such_package_xyz/meshes/arm.stl" in warning[0]
     assert (tmp_path / "v.html").stat().st_size > 100_000
+
+
+@pytest.mark.parametrize("command", [["reconstruct", "w.csv", "-c", "human17", "-o", "o"], ["demo", "-o", "o"]])
+def test_negative_seed_exits_2(tmp_path, command):
+    args = [str(tmp_path / a) if a in ("w.csv", "o") else a for a in command] + ["--seed", "-1"]
+    assert "--seed must be an integer >= 0" in _one_line_error(runner.invoke(app, args))
+    assert not (tmp_path / "o").exists()
+
+
+def test_validation_table_explains_relative_joints():
+    from chainspace.robot.validation import ValidationReport
+
+    joints = [{"name": "a1", "status": "relative to frame 0", "judged": True, "rms": 0.2, "max": 0.4,
+               "unit": "deg"},
+              {"name": "a2", "status": "observable", "judged": True, "rms": 0.1, "max": 0.3, "unit": "deg"}]
+    table = ValidationReport(joints=joints, bones=[], reprojection_rms_px=None, error_3d_mm=None,
+                             error_3d_pct_reach=None, reach_mm=1000.0, thresholds={}, checks={}).table()
+    assert "| a1 | relative to frame 0 |" in table
+    assert "- a1: seen only relative to frame 0" in table and "change since frame 0" in table

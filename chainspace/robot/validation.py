@@ -104,6 +104,10 @@ class ValidationReport:
             diff = "-" if b.get("share_error_pct") is None else f"{b['share_error_pct']:+.1f}"
             out.append(f"| {b['name']} | {b['urdf_mm'] / 1000:.4f} | {rob} | {rec} | {diff} |")
         out.append("")
+        rel = [j["name"] for j in self.joints if j.get("status") == "relative to frame 0"]
+        if rel:
+            out.append(f"- {', '.join(rel)}: seen only relative to frame 0 (a turn of the camera looks the same), "
+                       "so compared, and plotted, as the change since frame 0")
         if self.reprojection_rms_px is not None:
             out.append(f"- reprojection RMS: {self.reprojection_rms_px:.3f} px")
         if self.error_3d_mm is not None:
