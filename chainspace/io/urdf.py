@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import difflib
+import functools
 import logging
 import os
 import re
@@ -592,6 +593,14 @@ def _package_name(folder: Path) -> str | None:
 
 
 def _package_roots(package: str, urdf_path: str | Path | None) -> list[Path]:
+    """:func:`_find_package_roots`, remembered per package, URDF folder and ROS_PACKAGE_PATH (a URDF
+    names the same package for each of its meshes)."""
+    folder = None if urdf_path is None else str(Path(urdf_path).resolve().parent)
+    return list(_find_package_roots(package, folder, os.environ.get("ROS_PACKAGE_PATH", "")))
+
+
+@functools.lru_cache(maxsize=256)
+def _find_package_roots(package: str, urdf_folder: str | None, ros_package_path: str) -> tuple[Path, ...]:
     """Folders that may be ROS package ``package``, in the order ROS tools would look: the entries of
     ROS_PACKAGE_PATH (and their sub-folders two levels down), the URDF's own ancestors (a folder named
     ``package``, one whose package.xml names it, or one holding a folder ``package``), and the share
@@ -602,7 +611,7 @@ def _package_roots(package: str, urdf_path: str | Path | None) -> list[Path]:
         if folder.is_dir() and (folder.name == package or _package_name(folder) == package):
             found.append(folder)
 
-    for entry in filter(None, os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep)):
+    for entry in filter(None, ros_package_path.split(os.pathsep)):
         root = Path(entry)
         if not root.is_dir():
             continue
@@ -613,8 +622,8 @@ def _package_roots(package: str, urdf_path: str | Path | None) -> list[Path]:
                 if sub.is_dir():
                     consider(sub / package)
                     consider(sub)
-    if urdf_path is not None:
-        for anc in Path(urdf_path).resolve().parents:
+    if urdf_folder is not None:
+        for anc in (Path(urdf_folder), *Path(urdf_folder).parents):
             consider(anc)
             consider(anc / package)
     with contextlib.suppress(Exception):
@@ -624,7 +633,7 @@ def _package_roots(package: str, urdf_path: str | Path | None) -> list[Path]:
         if robots is not None:  # share/example-robot-data/robots/<pkg>, share/<pkg>
             for folder in (robots / package, robots.parent.parent / package):
                 consider(folder)
-    return list(dict.fromkeys(found))
+    return tuple(dict.fromkeys(found))
 
 
 def resolve_mesh(uri: str, urdf_path: str | Path | None = None) -> Path | None:
