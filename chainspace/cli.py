@@ -587,7 +587,7 @@ def demo(
     with console.status("running the demo") as status:
         def progress(message: str) -> None:
             if not message.lstrip().startswith("|"):  # the report table goes to stdout at the end
-                console.print(message.strip(), markup=False, highlight=False)
+                console.print(message.strip(), markup=False, highlight=False, soft_wrap=True)
                 status.update(message.strip())
 
         summary = run_demo(out, overwrite=overwrite, progress=progress, seed=seed)
