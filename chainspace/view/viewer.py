@@ -182,9 +182,7 @@ def add_robot(vis: Any, animation: Any, urdf_path: str | os.PathLike, q: np.ndar
     from scipy.spatial.transform import Rotation
 
     urdf_path = Path(urdf_path)
-    dirs = [str(p) for p in list(urdf_path.resolve().parents)[:4]]
-    built = pin.buildModelsFromUrdf(str(urdf_path), package_dirs=dirs, geometry_types=pin.GeometryType.VISUAL)
-    model, visual = built[0], built[-1]
+    model, visual = _robot_models(urdf_path)
     q = np.asarray(q, dtype=float)
     if q.ndim != 2 or q.shape[1] != model.nq:
         raise TrackError(f"joint angles have shape {q.shape}, but {urdf_path.name} has nq = {model.nq}")
@@ -260,6 +258,20 @@ def _weak_pose(camera: Any, poses: np.ndarray | None, cameras: Any, translations
     if poses is None or cameras is None or translations is None:
         raise CameraError("drawing the camera needs camera_pose= (or a result with fitted cameras)")
     return pose_from_weak(np.asarray(cameras)[0], np.asarray(translations)[0], camera, poses[0].mean(axis=0))
+
+
+def _robot_models(urdf_path: Path) -> tuple[Any, Any]:
+    """Pinocchio's model and visual geometry of a URDF, its meshes found as ROS tools find them
+    (:func:`chainspace.io.urdf.resolve_mesh`); missing meshes are drawn as primitives, with a warning."""
+    import pinocchio as pin
+
+    from ..io.urdf import visual_urdf
+
+    model = pin.buildModelFromUrdf(str(urdf_path))
+    xml = visual_urdf(urdf_path)
+    dirs = [str(p) for p in list(urdf_path.resolve().parents)[:4]]
+    visual = pin.buildGeomFromUrdfString(model, xml, pin.GeometryType.VISUAL, package_dirs=dirs)
+    return model, visual
 
 
 # ---------------------------------------------------------------------------------------- staging
