@@ -237,7 +237,9 @@ def _fit_summary(fit: Any) -> dict[str, Any]:
         "residual_3d_mm": stats(res3, 1000.0),
         "residual_px": stats(respx, 1.0),
         "timings_s": getattr(fit, "timings", {}) or {},
-        "units": {"q": "rad (revolute) or m (prismatic)", "positions": "m", "residual_3d": "m",
+        "units": {"q": "rad (revolute) or m (prismatic); continuous joints as (cos, sin)",
+                  "angles": "rad (revolute, continuous) or m (prismatic), one per joint_names",
+                  "positions": "m", "residual_3d": "m",
                   "residual_px": "px"},
     }
 
@@ -325,8 +327,9 @@ def save_results(obj: Any, out: str | os.PathLike, *, overwrite: bool = False,
                 if kind == "reconstruction":
                     joints = arrays.get("joints", [f"joint{j}" for j in range(arrays["poses"].shape[1])])
                     _positions_csv(f, arrays["poses"], list(joints))
-                else:
-                    _angles_csv(f, arrays["q"], list(arrays["joint_names"]))
+                else:  # one angle per joint (a continuous joint's (cos, sin) of q as radians)
+                    angles = np.asarray(getattr(obj, "angles", arrays["q"]))
+                    _angles_csv(f, angles, list(arrays["joint_names"]))
     return list(paths.values())
 
 

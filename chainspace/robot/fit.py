@@ -456,7 +456,7 @@ def fit_joint_angles(
                 results, mirror_tied = order(results + alts)
         r = results[0]
         sigma = _noise_sigma(r["out"][2], w2)
-        if accel_std is not None and robot.euclidean and F >= 3 and not per_frame and sigma > 1e-6:
+        if accel_std is not None and F >= 3 and not per_frame and sigma > 1e-6:
             # joint accelerations ~ N(0, accel_std^2) against pixel noise sigma: the prior's weight
             mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
             smoothed = True
@@ -488,13 +488,9 @@ def fit_joint_angles(
     R, t = best["sign"] * R, best["sign"] * t
     positions = s * pos_base @ R.T + t
     residual_3d = _rms_per_frame(np.linalg.norm(positions - Xz, axis=-1), w3)
-    observable = np.ones(robot.nq, bool)
-    relative = np.zeros(robot.nq, bool)
-    for v in np.flatnonzero(blind | gauge):
-        qi = robot.q_of_v[v]
-        if qi >= 0:
-            observable[qi] = False
-            relative[qi] = bool(gauge[v] and not blind[v] and not per_frame)
+    # one flag per degree of freedom (nv), as joint_names: a continuous joint's (cos, sin) is one angle
+    observable = ~(blind | gauge)
+    relative = gauge & ~blind & (not per_frame)
     notes = _notes(robot, blind, gauge & ~blind, per_frame)
     if residual_px is not None:  # view: the fitted camera(s); its third row is the depth axis
         for parent, turned, frames in _face_on_planes(robot, q, view.R[view.cam_of][:, 2]):

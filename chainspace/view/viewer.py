@@ -183,7 +183,11 @@ def add_robot(vis: Any, animation: Any, urdf_path: str | os.PathLike, q: np.ndar
 
     urdf_path = Path(urdf_path)
     dirs = [str(p) for p in list(urdf_path.resolve().parents)[:4]]
-    built = pin.buildModelsFromUrdf(str(urdf_path), package_dirs=dirs, geometry_types=pin.GeometryType.VISUAL)
+    try:  # mimic joints driven by their leader, as chainspace.io.urdf.build_model builds the model
+        built = pin.buildModelsFromUrdf(str(urdf_path), package_dirs=dirs, geometry_types=pin.GeometryType.VISUAL,
+                                        mimic=True)
+    except TypeError:  # Pinocchio < 3.4
+        built = pin.buildModelsFromUrdf(str(urdf_path), package_dirs=dirs, geometry_types=pin.GeometryType.VISUAL)
     model, visual = built[0], built[-1]
     q = np.asarray(q, dtype=float)
     if q.ndim != 2 or q.shape[1] != model.nq:
