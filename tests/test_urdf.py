@@ -22,7 +22,7 @@ ROBOTS = ["milling_arm"] + EXAMPLES
 @lru_cache(maxsize=None)
 def _load(path: str):
     chain = from_urdf(path)
-    return chain, pin.buildModelFromUrdf(path)
+    return chain, pin.buildModelFromUrdf(path, mimic=True)  # mimic joints driven by their leader, as chainspace
 
 
 @pytest.fixture(params=ROBOTS)

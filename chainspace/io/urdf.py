@@ -509,6 +509,8 @@ def _rest_configuration(tree: _UrdfTree, model: Any, q: Any) -> np.ndarray:
                 raise tree.error(f"q[{jn!r}] = {value!r} is not a number") from None
             if not np.isfinite(v):
                 raise tree.error(f"q[{jn!r}] is not finite")
+            if jm.nv == 0:  # a mimic joint: Pinocchio drives it from its leader
+                raise tree.error(f"q[{jn!r}]: a mimic joint follows its leader joint; give the leader's value")
             if jm.nq == 1:
                 q0[jm.idx_q] = v
             elif jm.nq == 2 and jm.nv == 1:  # continuous joint: (cos, sin)
