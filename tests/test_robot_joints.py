@@ -33,7 +33,7 @@ MIMIC_URDF = """<?xml version="1.0"?>
     <origin xyz="0.1 0.02 0"/><axis xyz="0 1 0"/><limit lower="0" upper="0.05" effort="1" velocity="1"/></joint>
   <joint name="finger_right_joint" type="prismatic"><parent link="palm"/><child link="finger_right"/>
     <origin xyz="0.1 -0.02 0"/><axis xyz="0 -1 0"/><limit lower="0" upper="0.05" effort="1" velocity="1"/>
-    <mimic joint="finger_left_joint" multiplier="1" offset="0"/></joint>
+    <mimic joint="finger_left_joint" multiplier="2" offset="0"/></joint>
 </robot>
 """
 
@@ -122,10 +122,10 @@ def test_mimic_joint_is_driven_by_its_leader(tmp_path):
     robot = RobotKinematics(path, chain)
     assert robot.nv == 4 and "finger_right_joint" not in robot.joint_names  # not a degree of freedom
     q = robot.q_rest.copy()
-    q[3] = 0.03  # open the leader: both fingers move apart
+    q[3] = 0.02  # open the leader: the mimic finger moves twice as far (multiplier 2)
     pos = robot.positions(q)[0]
     left, right = chain.joint_index("finger_left"), chain.joint_index("finger_right")
-    assert pos[left, 1] - pos[right, 1] == pytest.approx(0.04 + 0.06)
+    assert pos[left, 1] - pos[right, 1] == pytest.approx(0.04 + 0.02 + 0.04)
     # the Jacobian of the mimic finger is folded onto the leader's column
     q2 = q.copy()
     q2[3] += 1e-6

@@ -65,15 +65,15 @@ class RobotKinematics:
         # (homogeneous), and the velocity directions that move it (J, nv): its supporting joints.
         self._parent_joint = np.array([m.frames[fid].parentJoint for fid in self.frame_ids], int)
         self._in_parent = np.array([np.append(m.frames[fid].placement.translation, 1.0) for fid in self.frame_ids])
-        # Mimic joints (Pinocchio >= 3.4) have columns of their own in the Jacobian (nvExtended), folded
-        # onto their leader's velocity by _fold (nvExtended, nv): the mimic's scaling.
+        # Mimic joints (Pinocchio >= 3.4) have columns of their own in the Jacobian (nvExtended), already
+        # scaled by the mimic's multiplier; _fold (nvExtended, nv) adds each onto its leader's velocity.
         nvx = int(getattr(m, "nvExtended", self.nv))
         self._fold = np.zeros((nvx, self.nv))
         for j in range(1, m.njoints):
             jm = m.joints[j]
             x0 = int(getattr(jm, "idx_vExtended", jm.idx_v))
             if jm.shortname() == "JointModelMimic":
-                self._fold[x0, jm.idx_v] = float(jm.extract().scaling)
+                self._fold[x0, jm.idx_v] = 1.0
             else:
                 self._fold[x0:x0 + jm.nv, jm.idx_v:jm.idx_v + jm.nv] += np.eye(jm.nv)
         self._carried_by = np.zeros((len(self.frame_ids), nvx), bool)
