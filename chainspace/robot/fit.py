@@ -100,8 +100,13 @@ against, off the axis (a mark on the base plate). Give them to ``from_urdf`` as
 ``extra_frames={"base_mark": ("base_link", [0.3, 0, 0]), "tool_tip": ("tool0", [0, 0.05, 0.2])}``.
 
 Conventions: ``fit.q`` is (F, nq) in the order of the Pinocchio model built from the same URDF
-(``pinocchio.buildModelFromUrdf``); lengths in metres, angles in radians, image coordinates in the
-units of the tracks (pixels). Cameras map points of the robot's base frame to the image.
+(``pinocchio.buildModelFromUrdf(path, mimic=True)``, :func:`chainspace.io.urdf.build_model`): a
+continuous joint holds (cos, sin) there. ``fit.angles`` (F, nv) has one coordinate per joint, in the
+order of ``fit.joint_names`` (as ``fit.observable`` and ``fit.relative``): radians for revolute and
+continuous joints, metres for prismatic ones; a mimic joint is driven by its leader and is no joint of
+its own there. Floating bases (and other multi-dof joints) are refused with a DescriptionError. Lengths
+in metres, image coordinates in the units of the tracks (pixels). Cameras map points of the robot's
+base frame to the image.
 """
 
 from __future__ import annotations
