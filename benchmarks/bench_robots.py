@@ -1,6 +1,6 @@
 """Robot benchmark (issue 4): joint angles from one camera's 2D tracks, against the truth.
 
-    python benchmarks/bench_robots.py            # 4 robots x (0, 1, 3 px static; 1 px per-frame), 300 frames, 3 seeds
+    python benchmarks/bench_robots.py            # 6 robots x (0, 1, 3 px static; 1 px per-frame), 300 frames, 3 seeds
     python benchmarks/bench_robots.py --quick    # 100 frames, 1 seed
     python benchmarks/bench_robots.py --robots "milling arm" UR10 --seeds 1
 

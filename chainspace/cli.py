@@ -202,16 +202,18 @@ def _load_poses(path: Path | None, chain: Any) -> np.ndarray | None:
     return X
 
 
-def _load_q(path: Path, names: list[str]) -> np.ndarray:
-    """Joint angles (F, nq) for joints ``names``; a CSV's columns are matched by header name (a unit
-    in parentheses ignored), else every column but frame and time is taken in order."""
-    nq = len(names)
+def _load_q(path: Path, names: list[str], nq: int | None = None) -> np.ndarray:
+    """Joint angles (F, len(names)) for joints ``names`` (one per joint), or (F, nq) in Pinocchio's
+    layout when ``nq`` is given (continuous joints as (cos, sin)); a CSV's columns are matched by header
+    name (a unit in parentheses ignored), else every column but frame and time is taken in order."""
+    n = len(names)
     if path.suffix.lower() == ".csv" and path.exists():
         q = _csv_columns(path, names)
     else:
         q = np.asarray(_load_array(path, "joint angles", ("q", "truth_q")), dtype=float)
-    if q.ndim != 2 or q.shape[1] != nq:
-        raise TrackError(f"{path}: joint angles have shape {q.shape}, expected (frames, {nq})")
+    if q.ndim != 2 or q.shape[1] not in {n, nq}:
+        want = f"(frames, {n})" + (f" or (frames, {nq})" if nq not in (None, n) else "")
+        raise TrackError(f"{path}: joint angles have shape {q.shape}, expected {want}")
     return q
 
 
@@ -501,8 +503,8 @@ def _is_result(path: Path) -> bool:
 @_guarded
 def validate(
     fit_file: Annotated[Path, typer.Argument(metavar="FIT", help="joint_angles.npz written by 'chainspace fit'.")],
-    truth: Annotated[Optional[Path], typer.Option(help="True joint angles (F, nq) rad: .npy, .csv or .npz "
-                                                       "('q').")] = None,
+    truth: Annotated[Optional[Path], typer.Option(help="True joint angles, one per joint (F, nv) "
+                                                       "or Pinocchio's q (F, nq), rad/m: .npy, .csv or .npz ('q').")] = None,
     out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Folder for validation.json/.md.")] = None,
     overwrite: Overwrite = False,
 ) -> None:
@@ -516,7 +518,7 @@ def validate(
     fitted = load_results(fit_file)
     if not hasattr(fitted, "q"):
         raise TrackError(f"{fit_file}: not a joint fit (write one with 'chainspace fit')")
-    truth_q = None if truth is None else _load_q(truth, list(fitted.joint_names))
+    truth_q = None if truth is None else _load_q(truth, list(fitted.joint_names), np.shape(fitted.q)[1])
     if truth_q is not None and len(truth_q) != len(fitted.q):
         raise TrackError(f"{truth}: {len(truth_q)} frames of joint angles for a fit of {len(fitted.q)} frames")
     report = run(fitted, truth_q)

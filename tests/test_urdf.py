@@ -22,7 +22,7 @@ ROBOTS = ["milling_arm"] + EXAMPLES
 @lru_cache(maxsize=None)
 def _load(path: str):
     chain = from_urdf(path)
-    return chain, pin.buildModelFromUrdf(path)
+    return chain, pin.buildModelFromUrdf(path, mimic=True)  # mimic joints driven by their leader, as chainspace
 
 
 @pytest.fixture(params=ROBOTS)
@@ -95,9 +95,18 @@ def test_bone_lengths_equal_pinocchio_frame_distances(robot, rng):
         np.testing.assert_allclose(chain.bone_lengths(X)[fixed], rest[fixed], atol=1e-9)
     # only prismatic joints make a full chain's bones change length
     prismatic = {"JointModelPX", "JointModelPY", "JointModelPZ", "JointModelPrismaticUnaligned"}
+
+
+    def kind(j):  # a mimic joint moves as its leader does (same q entry)
+        jm = model.joints[j]
+        if jm.shortname() == "JointModelMimic":
+            jm = next(model.joints[k] for k in range(1, model.njoints)
+                      if model.joints[k].nq and model.joints[k].idx_q == jm.idx_q)
+        return jm.shortname()
+
     prismatic_children = {
         f.name for f in model.frames
-        if f.type == pin.FrameType.BODY and model.joints[f.parentJoint].shortname() in prismatic
+        if f.type == pin.FrameType.BODY and kind(f.parentJoint) in prismatic
     }
     assert all(b in prismatic_children for _, b in variable)
     assert bool(variable) == bool(chain.metadata["prismatic"])

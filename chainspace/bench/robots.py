@@ -1,6 +1,7 @@
 """The robot benchmark: tracks of known robot motion in, joint angles out, checked against the truth.
 
-For the milling arm (robots/) and the UR10, Panda and xArm7 of example-robot-data: 300-frame random
+For the milling arm (robots/), the UR10, Panda and xArm7 of example-robot-data, the Kinova Gen2
+(continuous joints) and the milling arm on its floor track (a prismatic axis, robots/): 300-frame random
 smooth trajectories inside the joint limits, a static camera at a random view, the robot spanning
 about 800 px, 0, 1 and 3 px noise, and per-frame cameras at 1 px. Each trial goes the user's way:
 :func:`chainspace.reconstruct` on the tracks alone, then :func:`chainspace.fit_joint_angles` with the
@@ -40,7 +41,13 @@ ROBOTS: dict[str, dict[str, Any]] = {
     "xArm7": {"urdf": "xarm7", "links": None,
               "extra_frames": {"shoulder_marker": ("link1", [0.08, 0.0, -0.05]),
                                "tool_marker": ("link7", [0.05, 0.0, 0.03])}},
+    # continuous joints (Pinocchio's q holds (cos, sin) for joints 1, 4 and 6; errors are per angle)
+    "Kinova": {"urdf": "kinova", "links": None},
+    # a prismatic 7th axis (the floor track, reported in metres; its row's joint error is over the
+    # six angles, the track's own error in mm is in the validation report)
+    "milling arm on track": {"urdf": "milling_arm_on_track", "links": None},
 }
+SHIPPED = ("milling_arm", "milling_arm_on_track")  # robots/ rather than example-robot-data
 
 CONDITIONS = [("static", 0.0), ("static", 1.0), ("static", 3.0), ("per-frame", 1.0)]
 
@@ -51,17 +58,27 @@ def robot_chain(name: str):
     from ..io.urdf import from_urdf
 
     spec = ROBOTS[name]
-    path = shipped_path(spec["urdf"]) if spec["urdf"] == "milling_arm" else example_robot_urdf(spec["urdf"])
+    path = shipped_path(spec["urdf"]) if spec["urdf"] in SHIPPED else example_robot_urdf(spec["urdf"])
     return from_urdf(path, links=spec["links"], extra_frames=spec.get("extra_frames"))
 
 
 def trial_errors(fit: Any, trial: Any) -> tuple[float, float]:
-    """(worst per-joint RMS degrees over judged joints, mean 3D error of the fitted robot in metres)."""
+    """(worst per-joint RMS degrees over judged revolute and continuous joints (prismatic ones, in mm,
+    are left to the validation report), mean 3D error of the fitted robot in metres)."""
     from ..robot.validation import validate
 
     rep = validate(fit, trial.q, truth_positions=trial.positions)
-    judged = [j["rms"] for j in rep.joints if j["judged"] and j["rms"] is not None]
+    judged = [j["rms"] for j in rep.joints if j["judged"] and j["rms"] is not None and j["unit"] == "deg"]
     return (max(judged) if judged else float("nan")), rep.error_3d_mm / 1000.0
+
+
+def _prismatic_mm(fit: Any, trial: Any) -> float:
+    """Worst RMS error (mm) over the judged prismatic joints; NaN when there are none."""
+    from ..robot.validation import validate
+
+    rep = validate(fit, trial.q)
+    mm = [j["rms"] for j in rep.joints if j["judged"] and j["rms"] is not None and j["unit"] == "mm"]
+    return max(mm) if mm else float("nan")
 
 
 def run_robot_benchmark(quick: bool = False, progress: Callable[[str], None] | None = None, *,
@@ -85,7 +102,7 @@ def run_robot_benchmark(quick: bool = False, progress: Callable[[str], None] | N
         chain = robot_chain(name)
         reach = RobotKinematics(chain.metadata["urdf_path"], chain).reach()
         for camera, noise in conditions or CONDITIONS:
-            errs, e3, secs, unobs = [], [], 0.0, set()
+            errs, e3, secs, unobs, mm = [], [], 0.0, set(), []
             for seed in range(seeds):
                 trial = synthesize(chain, n_frames=n_frames, noise_px=noise, seed=seed)
                 t0 = time.perf_counter()
@@ -97,12 +114,14 @@ def run_robot_benchmark(quick: bool = False, progress: Callable[[str], None] | N
                 j, e = trial_errors(fit, trial)
                 errs.append(j)
                 e3.append(e)
+                mm += [_prismatic_mm(fit, trial)]
                 unobs |= {n for n, o, r in zip(fit.joint_names, fit.observable, fit.relative) if not (o or r)}
             row = {"robot": name, "camera": camera, "noise_px": noise, "joint_rms_deg": float(np.mean(errs)),
                    "joint_rms_deg_max": float(np.max(errs)), "error_3d_mm": 1000 * float(np.mean(e3)),
                    "error_3d_pct": 100 * float(np.mean(e3)) / reach, "fps": seeds * n_frames / secs,
                    "reach_mm": 1000 * reach, "n_frames": n_frames, "seeds": seeds,
-                   "unobservable": sorted(unobs)}
+                   "unobservable": sorted(unobs),
+                   "prismatic_rms_mm": float(np.mean(mm)) if np.isfinite(mm).all() else None}
             rows.append(row)
             if progress:
                 progress(f"{name:12s} {camera:9s} {noise:3.0f} px: worst joint {row['joint_rms_deg']:.3f} deg, "
@@ -117,6 +136,8 @@ def format_robot_table(rows: list[dict[str, Any]]) -> str:
     for r in rows:
         ok = r["joint_rms_deg"] <= 1.0 and r["error_3d_pct"] <= 1.0
         mark = "" if r["noise_px"] != 1.0 or r["camera"] != "static" else (" (target met)" if ok else " (target missed)")
+        if r.get("prismatic_rms_mm") is not None:  # a linear axis: its error in mm, beside the angles
+            mark += f"; prismatic {r['prismatic_rms_mm']:.2f} mm"
         out.append(f"| {r['robot']} | {r['camera']} | {r['noise_px']:g} | {r['joint_rms_deg']:.3f} / "
                    f"{r['joint_rms_deg_max']:.3f}{mark} | {r['error_3d_mm']:.1f} | {r['error_3d_pct']:.3f} | "
                    f"{r['fps']:.0f} | {', '.join(r['unobservable']) or '-'} |")

@@ -245,8 +245,9 @@ def _fit_summary(fit: Any) -> dict[str, Any]:
         "residual_px": stats(respx, 1.0),
         "relative_to_frame_0": [n for n, r in zip(fit.joint_names, relative, strict=False) if r],
         "timings_s": getattr(fit, "timings", {}) or {},
-        "units": {"q": "rad (revolute) or m (prismatic); joints in relative_to_frame_0 are seen only "
-                       "relative to frame 0",
+        "units": {"q": "rad (revolute) or m (prismatic); continuous joints as (cos, sin)",
+                  "angles": "rad (revolute, continuous) or m (prismatic), one per joint_names; joints in "
+                            "relative_to_frame_0 are seen only relative to frame 0",
                   "positions": "the reconstruction's units", "residual_3d_mm": "mm on the robot (URDF scale)",
                   "residual_3d_reconstruction_units": "the reconstruction's units (scale-free)",
                   "residual_px": "px"},
@@ -336,8 +337,9 @@ def save_results(obj: Any, out: str | os.PathLike, *, overwrite: bool = False,
                 if kind == "reconstruction":
                     joints = arrays.get("joints", [f"joint{j}" for j in range(arrays["poses"].shape[1])])
                     _positions_csv(f, arrays["poses"], list(joints))
-                else:
-                    _angles_csv(f, arrays["q"], list(arrays["joint_names"]))
+                else:  # one angle per joint (a continuous joint's (cos, sin) of q as radians)
+                    angles = np.asarray(getattr(obj, "angles", arrays["q"]))
+                    _angles_csv(f, angles, list(arrays["joint_names"]))
     return list(paths.values())
 
 

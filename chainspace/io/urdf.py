@@ -35,7 +35,7 @@ import numpy as np
 from ..chain import KinematicChain
 from ..errors import DescriptionError, DescriptionNotFoundError, located
 
-__all__ = ["from_urdf", "pinocchio_model", "point_positions", "resolve_mesh", "visual_urdf"]
+__all__ = ["build_model", "from_urdf", "pinocchio_model", "point_positions", "resolve_mesh", "visual_urdf"]
 
 # Joints that keep the child's origin at a fixed offset from the parent's origin.
 _RIGID_ORIGIN = {"fixed", "revolute", "continuous"}
@@ -104,6 +104,10 @@ def from_urdf(
     tree = _UrdfTree(path)
     urdf = tree.load_yourdfpy()
     model = _build_model(path)
+    if model.nv == 0:
+        raise tree.error(
+            f"the robot {urdf.robot.name!r} has no movable joint (every joint is fixed): there are no joint "
+            "angles to fit; a URDF for chainspace needs at least one revolute, continuous or prismatic joint")
     extras = _check_extra_frames(tree, model, extra_frames, merge_tolerance)
     q_rest = _rest_configuration(tree, model, q)
     groups = _merge_groups(tree, urdf, merge_tolerance)
@@ -129,6 +133,12 @@ def from_urdf(
         if isinstance(links, str) or not isinstance(links, Sequence):
             raise tree.error(f"links must be a list of link names, not {links!r}")
         chain = _select(chain, tree, rep, list(links), extras)
+    if chain.n_joints < 2:
+        kept = ", ".join(map(repr, chain.joints)) or "none"
+        raise tree.error(
+            f"nothing to track: {chain.n_joints} point left ({kept}) after merging links whose origins "
+            "coincide" + (" and keeping `links`" if links is not None else "")
+            + "; a chain needs at least 2 points (track more links, or add extra_frames)")
     group = {g[0]: g for g in groups}
     chain.metadata["merged"] = {
         p: group[rep[p]] for p in chain.joints if p in rep and len(group[rep[p]]) > 1
@@ -314,12 +324,37 @@ def _hint(name: str, names: Sequence[str]) -> str:
     return f" (did you mean {', '.join(map(repr, close))}?)" if close else ""
 
 
+def build_model(path: str | Path) -> Any:
+    """Pinocchio's model of a URDF file, as every part of chainspace builds it: mimic joints (``<mimic>``)
+    driven by their leader (``buildModelFromUrdf(path, mimic=True)``, Pinocchio >= 3.4), so that they
+    are no degree of freedom of their own. With an older Pinocchio a URDF with mimic joints is refused
+    (DescriptionError), since its model would fit them as free joints."""
+    return _build_model(Path(path))
+
+
+def _has_mimic(path: Path) -> bool:
+    try:
+        return "<mimic" in path.read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return False
+
+
 def _build_model(path: Path) -> Any:
     import pinocchio as pin
 
     with _captured_stderr() as said:
         try:
+            try:
+                return pin.buildModelFromUrdf(str(path), mimic=True)
+            except TypeError:  # Pinocchio < 3.4: no mimic joints
+                pass
+            if _has_mimic(path):
+                raise DescriptionError(located(
+                    f"the URDF has mimic joints, which need Pinocchio >= 3.4 (installed: {pin.__version__}); "
+                    "an older model would fit each mimic joint as a free joint", path))
             return pin.buildModelFromUrdf(str(path))
+        except DescriptionError:
+            raise
         except Exception as exc:  # Pinocchio's C++ parser raises RuntimeError/ValueError
             error = exc
     # urdfdom prints what it could not parse (the element) to the C stderr, not into the exception
@@ -475,6 +510,8 @@ def _rest_configuration(tree: _UrdfTree, model: Any, q: Any) -> np.ndarray:
                 raise tree.error(f"q[{jn!r}] = {value!r} is not a number") from None
             if not np.isfinite(v):
                 raise tree.error(f"q[{jn!r}] is not finite")
+            if jm.nv == 0:  # a mimic joint: Pinocchio drives it from its leader
+                raise tree.error(f"q[{jn!r}]: a mimic joint follows its leader joint; give the leader's value")
             if jm.nq == 1:
                 q0[jm.idx_q] = v
             elif jm.nq == 2 and jm.nv == 1:  # continuous joint: (cos, sin)

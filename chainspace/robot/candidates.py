@@ -31,7 +31,7 @@ def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray,
     F, nq = q.shape
     rng = np.random.default_rng(seed)
     held_q = _held_q(robot, free)  # entries held in a frame keep their value in every start
-    rand = _random_q(robot, rng, n_random) if robot.euclidean else np.broadcast_to(robot.q_rest, (n_random, nq))
+    rand = _random_q(robot, rng, n_random)
     starts = [q, _seeded(robot, q, free), _seeded(robot, q, free, True)] + [np.where(held_q, q, r) for r in rand] + \
         [np.where(held_q, q, m) for m in _depth_flips(robot, q, view, free)]
     K = len(starts)
@@ -97,11 +97,13 @@ def _across_long_gaps(robot: RobotKinematics, q: np.ndarray, tracks: np.ndarray,
             kept.append(qs[k])
             bridged = robot.continuous(q.copy())
             bridged[b] = robot.wrap_near(qs[k][None], bridged[b - 1])[0]
+            ang = robot.angles(bridged)  # (F, nv), unwrapped along the frames
             for v in np.flatnonzero(runs[b - 1] >= min_gap):
-                qi = robot.q_of_v[v]
                 a = b - runs[b - 1, v]
-                if qi >= 0 and a > 0:
-                    bridged[a:b, qi] = np.linspace(bridged[a - 1, qi], bridged[b, qi], b - a + 2)[1:-1]
+                if a > 0:
+                    ang[a:b, v] = np.linspace(ang[a - 1, v], ang[b, v], b - a + 2)[1:-1]
+                    moved = robot.q_mask(np.arange(robot.nv) == v)
+                    bridged[a:b][:, moved] = robot.from_angles(ang[a:b])[:, moved]
             starts.append(bridged)
     return starts
 
@@ -205,7 +207,7 @@ def _face_on_planes(robot: RobotKinematics, q: np.ndarray, depth: np.ndarray,
         reached = np.linalg.norm(robot.positions(q_m) - mirrored, axis=-1).max(1) < 1e-3 * reach
         frames = np.flatnonzero(np.abs(np.einsum("fd,fd->f", vt[:, -1], depth)) > np.cos(max_angle))
         if reached.mean() >= 0.9 and frames.size:
-            turned = np.abs(_wrapped(robot, q_m - q))[reached].max(0) > 1e-3
+            turned = robot.v_mask(np.abs(_wrapped(robot, q_m - q))[reached].max(0) > 1e-3)
             found.append((parent, [robot.joint_names[k] for k in np.flatnonzero(turned)], frames))
     return found
 

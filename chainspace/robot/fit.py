@@ -100,8 +100,13 @@ against, off the axis (a mark on the base plate). Give them to ``from_urdf`` as
 ``extra_frames={"base_mark": ("base_link", [0.3, 0, 0]), "tool_tip": ("tool0", [0, 0.05, 0.2])}``.
 
 Conventions: ``fit.q`` is (F, nq) in the order of the Pinocchio model built from the same URDF
-(``pinocchio.buildModelFromUrdf``); lengths in metres, angles in radians, image coordinates in the
-units of the tracks (pixels). Cameras map points of the robot's base frame to the image.
+(``pinocchio.buildModelFromUrdf(path, mimic=True)``, :func:`chainspace.io.urdf.build_model`): a
+continuous joint holds (cos, sin) there. ``fit.angles`` (F, nv) has one coordinate per joint, in the
+order of ``fit.joint_names`` (as ``fit.observable`` and ``fit.relative``): radians for revolute and
+continuous joints, metres for prismatic ones; a mimic joint is driven by its leader and is no joint of
+its own there. Floating bases (and other multi-dof joints) are refused with a DescriptionError. Lengths
+in metres, image coordinates in the units of the tracks (pixels). Cameras map points of the robot's
+base frame to the image.
 """
 
 from __future__ import annotations
@@ -456,7 +461,7 @@ def fit_joint_angles(
                 results, mirror_tied = order(results + alts)
         r = results[0]
         sigma = _noise_sigma(r["out"][2], w2)
-        if accel_std is not None and robot.euclidean and F >= 3 and not per_frame and sigma > 1e-6:
+        if accel_std is not None and F >= 3 and not per_frame and sigma > 1e-6:
             # joint accelerations ~ N(0, accel_std^2) against pixel noise sigma: the prior's weight
             mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
             smoothed = True
@@ -488,13 +493,9 @@ def fit_joint_angles(
     R, t = best["sign"] * R, best["sign"] * t
     positions = s * pos_base @ R.T + t
     residual_3d = _rms_per_frame(np.linalg.norm(positions - Xz, axis=-1), w3)
-    observable = np.ones(robot.nq, bool)
-    relative = np.zeros(robot.nq, bool)
-    for v in np.flatnonzero(blind | gauge):
-        qi = robot.q_of_v[v]
-        if qi >= 0:
-            observable[qi] = False
-            relative[qi] = bool(gauge[v] and not blind[v] and not per_frame)
+    # one flag per degree of freedom (nv), as joint_names: a continuous joint's (cos, sin) is one angle
+    observable = ~(blind | gauge)
+    relative = gauge & ~blind & (not per_frame)
     notes = _notes(robot, blind, gauge & ~blind, per_frame)
     if residual_px is not None:  # view: the fitted camera(s); its third row is the depth axis
         for parent, turned, frames in _face_on_planes(robot, q, view.R[view.cam_of][:, 2]):

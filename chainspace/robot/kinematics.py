@@ -26,10 +26,10 @@ class RobotKinematics:
         path = Path(urdf)
         if not path.is_file():
             raise DescriptionNotFoundError(f"URDF file {path} does not exist")
-        try:
-            self.model = pin.buildModelFromUrdf(str(path))
-        except Exception as exc:  # Pinocchio raises plain RuntimeError/ValueError
-            raise DescriptionError(f"{path}: Pinocchio cannot read this URDF: {exc}") from None
+        from ..io.urdf import build_model
+
+        self.model = build_model(path)
+        _check_supported_joints(self.model, path)
         self.urdf_path = str(path)
         self.chain = chain
         extra = dict(chain.metadata.get("extra_frames") or {})
@@ -59,26 +59,39 @@ class RobotKinematics:
         q_rest = chain.metadata.get("q_rest")
         self.q_rest = self.clip(np.asarray(q_rest, float) if q_rest is not None and np.size(q_rest) == self.nq
                                 else np.array(pin.neutral(m)))
-        self.joint_names = self._q_names()
+        self._init_spaces()
+        self.joint_names = self.dof_names  # one per degree of freedom (nv): what fits report
         # Each point as its joint's placement applies it: the parent joint, the point in its frame
         # (homogeneous), and the velocity directions that move it (J, nv): its supporting joints.
         self._parent_joint = np.array([m.frames[fid].parentJoint for fid in self.frame_ids], int)
         self._in_parent = np.array([np.append(m.frames[fid].placement.translation, 1.0) for fid in self.frame_ids])
-        self._carried_by = np.zeros((len(self.frame_ids), self.nv), bool)
+        # Mimic joints (Pinocchio >= 3.4) have columns of their own in the Jacobian (nvExtended), already
+        # scaled by the mimic's multiplier; _fold (nvExtended, nv) adds each onto its leader's velocity.
+        nvx = int(getattr(m, "nvExtended", self.nv))
+        self._fold = np.zeros((nvx, self.nv))
+        for j in range(1, m.njoints):
+            jm = m.joints[j]
+            x0 = int(getattr(jm, "idx_vExtended", jm.idx_v))
+            if jm.shortname() == "JointModelMimic":
+                self._fold[x0, jm.idx_v] = 1.0
+            else:
+                self._fold[x0:x0 + jm.nv, jm.idx_v:jm.idx_v + jm.nv] += np.eye(jm.nv)
+        self._carried_by = np.zeros((len(self.frame_ids), nvx), bool)
         for k, parent in enumerate(self._parent_joint):
             for j in m.supports[int(parent)][1:]:
-                self._carried_by[k, m.joints[j].idx_v:m.joints[j].idx_v + m.joints[j].nv] = True
+                jm = m.joints[j]
+                x0 = int(getattr(jm, "idx_vExtended", jm.idx_v))
+                self._carried_by[k, x0:x0 + int(getattr(jm, "nvExtended", jm.nv))] = True
+        self._mimic = nvx != self.nv or not np.array_equal(self._fold, np.eye(self.nv))
         # Where solvers start from "the rest pose": the rest pose with every revolute joint turned a
         # little, because rest poses are often singular (a stretched wrist, an upright arm), where the
         # gradient cannot tell a joint's sign.
-        up = self.q_rest + 0.3
-        seed = np.where(self.limited & (up > self.upper), self.q_rest - 0.3, up)
-        self.q_seed = self.clip(np.where(self.revolute, seed, self.q_rest))
-        self.q_seed_other = self.clip(2 * self.q_rest - self.q_seed)  # turned the other way
-        # the velocity index driving each q entry (-1 for the extra entries of multi-dof joints)
-        self.v_of_q = self.idx_v.copy()
-        self.q_of_v = np.array([int(np.flatnonzero(self.idx_v == v)[0]) if (self.idx_v == v).any() else -1
-                                for v in range(self.nv)])
+        a_rest = self.angles(self.q_rest)
+        up = a_rest + 0.3
+        seed = np.where(self.limited_v & (up > self.upper_v), a_rest - 0.3, up)
+        a_seed = np.where(self.turns_v, seed, a_rest)
+        self.q_seed = self.clip(self.from_angles(a_seed))
+        self.q_seed_other = self.clip(self.from_angles(2 * a_rest - a_seed))  # turned the other way
 
     def _frame_id(self, name: str, extra: dict) -> int:
         pin, m = self.pin, self.model
@@ -99,12 +112,47 @@ class RobotKinematics:
             f"{self.urdf_path}: chain point {name!r} is neither a link of the URDF nor an extra frame "
             f"(extra frames: {sorted(extra) or 'none'}); build the chain with chainspace.from_urdf")
 
-    def _q_names(self) -> list[str]:
-        m, names = self.model, []
+    def _init_spaces(self) -> None:
+        """How q (nq, Pinocchio's configuration) and velocities / angles (nv) correspond, per joint.
+
+        A revolute or prismatic joint has one entry in each; a continuous joint two in q (cos, sin) and
+        one angle; a mimic joint (Pinocchio >= 3.4) none: its leader drives it. ``_qv`` (nq, nv) marks
+        the entries of each joint in both spaces: :meth:`q_mask` and :meth:`v_mask` map masks through it.
+        """
+        m, nq, nv = self.model, self.nq, self.nv
+        self._qv = np.zeros((nq, nv), bool)
+        self.dof_names: list[str] = []
+        self.turns_v = np.zeros(nv, bool)  # angles that wrap: revolute and continuous joints
+        self.prismatic_v = np.zeros(nv, bool)
+        self.continuous_v = np.zeros(nv, bool)
+        self.limited_v = np.zeros(nv, bool)
+        self.lower_v, self.upper_v = np.full(nv, -np.inf), np.full(nv, np.inf)
         for j in range(1, m.njoints):
-            nq = m.joints[j].nq
-            names += [m.names[j]] if nq == 1 else [f"{m.names[j]}[{k}]" for k in range(nq)]
-        return names
+            jm = m.joints[j]
+            if jm.nv == 0:  # a mimic joint
+                continue
+            self._qv[jm.idx_q:jm.idx_q + jm.nq, jm.idx_v:jm.idx_v + jm.nv] = True
+            self.dof_names += [m.names[j]] if jm.nv == 1 else [f"{m.names[j]}[{k}]" for k in range(jm.nv)]
+            if jm.nq == 1 and jm.nv == 1:
+                v, i = jm.idx_v, jm.idx_q
+                self.turns_v[v] = self.revolute[i]
+                self.prismatic_v[v] = not self.revolute[i]
+                self.limited_v[v] = self.limited[i]
+                self.lower_v[v], self.upper_v[v] = self.lower[i], self.upper[i]
+            elif jm.nq == 2 and jm.nv == 1:
+                self.turns_v[jm.idx_v] = self.continuous_v[jm.idx_v] = True
+
+    def q_mask(self, v_mask: np.ndarray) -> np.ndarray:
+        """(..., nq) the configuration entries of the joints whose directions ``v_mask`` (..., nv) marks
+        (both entries (cos, sin) of a continuous joint)."""
+        v_mask = np.asarray(v_mask, bool)
+        return (v_mask.astype(float) @ self._qv.T.astype(float)) > 0
+
+    def v_mask(self, q_mask: np.ndarray) -> np.ndarray:
+        """(..., nv) the directions of the joints any of whose configuration entries ``q_mask`` (..., nq)
+        marks."""
+        q_mask = np.asarray(q_mask, bool)
+        return (q_mask.astype(float) @ self._qv.astype(float)) > 0
 
     # ------------------------------------------------------------------ configuration space
     def clip(self, q: np.ndarray) -> np.ndarray:
@@ -163,11 +211,32 @@ class RobotKinematics:
             if jm.nq == jm.nv:
                 out[..., jm.idx_v:jm.idx_v + jm.nv] = q[..., jm.idx_q:jm.idx_q + jm.nq]
             elif jm.nq == 2 and jm.nv == 1:
-                out[..., jm.idx_v] = np.unwrap(np.arctan2(q[..., jm.idx_q + 1], q[..., jm.idx_q]), axis=0)
+                a = np.arctan2(q[..., jm.idx_q + 1], q[..., jm.idx_q])
+                out[..., jm.idx_v] = np.unwrap(a, axis=0) if a.ndim else a
             else:
                 for f in np.ndindex(q.shape[:-1]):
                     d = self.pin.difference(m, self.q_rest, q[f])
                     out[f + (slice(jm.idx_v, jm.idx_v + jm.nv),)] = d[jm.idx_v:jm.idx_v + jm.nv]
+        return out
+
+    def from_angles(self, a: np.ndarray) -> np.ndarray:
+        """Configurations (..., nq) of per-dof coordinates a (..., nv), the inverse of :meth:`angles`:
+        a continuous joint's angle as (cos, sin)."""
+        a = np.asarray(a, float)
+        if self.euclidean:
+            return a.copy()
+        out = np.broadcast_to(self.q_rest, a.shape[:-1] + (self.nq,)).copy()
+        m = self.model
+        for j in range(1, m.njoints):
+            jm = m.joints[j]
+            if jm.nv == 0:
+                continue
+            if jm.nq == jm.nv:
+                out[..., jm.idx_q:jm.idx_q + jm.nq] = a[..., jm.idx_v:jm.idx_v + jm.nv]
+            elif jm.nq == 2 and jm.nv == 1:
+                out[..., jm.idx_q], out[..., jm.idx_q + 1] = np.cos(a[..., jm.idx_v]), np.sin(a[..., jm.idx_v])
+            else:  # not reached: RobotKinematics refuses other multi-dof joints
+                raise DescriptionError(f"{self.urdf_path}: joint {m.names[j]!r} has no angle coordinates")
         return out
 
     # ------------------------------------------------------------------ kinematics
@@ -191,7 +260,7 @@ class RobotKinematics:
         pin, m, d = self.pin, self.model, self.data
         q = np.atleast_2d(q)
         placements = np.empty((len(q), m.njoints, 4, 4))
-        spatial = np.empty((len(q), 6, self.nv))
+        spatial = np.empty((len(q), 6, self._fold.shape[0]))
         for f, qf in enumerate(q):
             pin.computeJointJacobians(m, d, qf)
             spatial[f] = d.J
@@ -201,7 +270,8 @@ class RobotKinematics:
         # point and frame cost more than the kinematics themselves.
         pos = self._points(placements)
         lin, ang = spatial[:, None, :3], spatial[:, None, 3:]
-        return pos, (lin + np.cross(ang, pos[..., None], axis=2)) * self._carried_by[:, None]
+        jac = (lin + np.cross(ang, pos[..., None], axis=2)) * self._carried_by[:, None]
+        return pos, (jac @ self._fold if self._mimic else jac)
 
     def reach(self) -> float:
         """Largest distance of a chain point from the root over the rest pose and the limits' middle, m."""
@@ -210,19 +280,31 @@ class RobotKinematics:
         return float(np.linalg.norm(p - p[:, :1], axis=-1).max())
 
 
+def _check_supported_joints(model, path) -> None:
+    """Joint fits know revolute, continuous, prismatic, fixed and mimic joints; say which joint is not."""
+    kinds = {"JointModelFreeFlyer": "floating (free-flyer, 6 degrees of freedom)",
+             "JointModelPlanar": "planar (3 degrees of freedom)", "JointModelSpherical": "spherical"}
+    for j in range(1, model.njoints):
+        jm = model.joints[j]
+        if jm.nv > 1 or jm.nq > 2:
+            what = kinds.get(jm.shortname(), f"{jm.shortname()} ({jm.nv} degrees of freedom)")
+            raise DescriptionError(
+                f"{path}: joint {model.names[j]!r} is {what}: a floating-base robot (or a joint of more "
+                "than one degree of freedom) is not supported by the joint-angle fit and robot synthesis, "
+                "which need a fixed base and 1-dof joints (revolute, continuous, prismatic; fixed and "
+                "mimic joints too); fix the base in the URDF (make that joint fixed) to fit the arm on it")
+
+
 def _held_q(robot: RobotKinematics, free: np.ndarray) -> np.ndarray:
     """(..., nq) entries of q held where free (..., nv) holds their direction."""
-    held = np.zeros(free.shape[:-1] + (robot.nq,), bool)
-    vq = robot.v_of_q >= 0
-    held[..., vq] = ~free[..., robot.v_of_q[vq]]
-    return held
+    return robot.q_mask(~np.asarray(free, bool))
 
 
 def _random_q(robot: RobotKinematics, rng: np.random.Generator, n: int) -> np.ndarray:
     """(n, nq) configurations drawn uniformly within the joint limits (a turn either way where none)."""
-    lo = np.where(robot.limited, np.maximum(robot.lower, -np.pi), -np.pi)
-    hi = np.where(robot.limited, np.minimum(robot.upper, np.pi), np.pi)
-    return robot.clip(rng.uniform(lo, hi, (n, robot.nq)))
+    lo = np.where(robot.limited_v, np.maximum(robot.lower_v, -np.pi), -np.pi)
+    hi = np.where(robot.limited_v, np.minimum(robot.upper_v, np.pi), np.pi)
+    return robot.clip(robot.from_angles(rng.uniform(lo, hi, (n, robot.nv))))
 
 
 def _seeded(robot: RobotKinematics, q: np.ndarray, free: np.ndarray, other_side: bool = False) -> np.ndarray:
@@ -243,10 +325,7 @@ def _roughness(robot: RobotKinematics, q: np.ndarray) -> float:
 
 def _gauge_q(robot: RobotKinematics, gauge_v: np.ndarray) -> np.ndarray:
     """(nq,) mask of the q entries driven by the velocity directions gauge_v (nv,)."""
-    out = np.zeros(robot.nq, bool)
-    qi = robot.q_of_v[gauge_v]
-    out[qi[qi >= 0]] = True
-    return out
+    return robot.q_mask(gauge_v)
 
 
 def _rest_distance(robot: RobotKinematics, q: np.ndarray, q_prev: np.ndarray, gauge: np.ndarray) -> np.ndarray:

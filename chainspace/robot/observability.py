@@ -14,10 +14,7 @@ def _structural(robot: RobotKinematics, w: np.ndarray, seed: int = 0) -> tuple[n
     """What the tracked points (those with weight somewhere in w (F, J)) can see, from the structure
     alone: at a few random configurations, the (nv,) directions that move no tracked point (blind) and
     those a change of the sequence's similarity imitates (gauge)."""
-    rng = np.random.default_rng(seed)
-    lo = np.where(robot.limited, robot.lower, -np.pi)
-    hi = np.where(robot.limited, robot.upper, np.pi)
-    qs = robot.clip(np.where(robot.v_of_q >= 0, rng.uniform(lo, hi, (3, robot.nq)), robot.q_rest))
+    qs = _probe_q(robot, np.random.default_rng(seed))
     pos, jac = robot.jacobians(qs)
     seen = (w > 0).any(0)
     ext = max(np.linalg.norm(pos[:, seen] - pos[:, seen].mean(1, keepdims=True), axis=-1).max(), 1e-9)
@@ -26,13 +23,17 @@ def _structural(robot: RobotKinematics, w: np.ndarray, seed: int = 0) -> tuple[n
     return blind, gauge
 
 
+def _probe_q(robot: RobotKinematics, rng: np.random.Generator) -> np.ndarray:
+    """(3, nq) configurations drawn within the joint limits (a turn either way where there are none)."""
+    lo = np.where(robot.limited_v, robot.lower_v, -np.pi)
+    hi = np.where(robot.limited_v, robot.upper_v, np.pi)
+    return robot.clip(robot.from_angles(rng.uniform(lo, hi, (3, robot.nv))))
+
+
 def _unseen(robot: RobotKinematics, w: np.ndarray, seed: int = 0) -> np.ndarray:
     """(F, nv) directions that move no point seen in that frame (w (F, J) > 0): the data say nothing
     about them there, so they are held and later interpolated from the neighbouring frames."""
-    rng = np.random.default_rng(seed)
-    lo = np.where(robot.limited, robot.lower, -np.pi)
-    hi = np.where(robot.limited, robot.upper, np.pi)
-    qs = robot.clip(np.where(robot.v_of_q >= 0, rng.uniform(lo, hi, (3, robot.nq)), robot.q_rest))
+    qs = _probe_q(robot, np.random.default_rng(seed))
     pos, jac = robot.jacobians(qs)
     ext = max(np.linalg.norm(pos - pos.mean(1, keepdims=True), axis=-1).max(), 1e-9)
     moves = np.linalg.norm(jac, axis=2).max(0) > 1e-9 * ext  # (J, nv) structural support
@@ -41,16 +42,19 @@ def _unseen(robot: RobotKinematics, w: np.ndarray, seed: int = 0) -> np.ndarray:
 
 def _fill_unseen(robot: RobotKinematics, q: np.ndarray, unseen: np.ndarray) -> np.ndarray:
     """q (F, nq) with each direction's unseen frames linearly interpolated (unwrapped) from its seen ones."""
-    q = q.copy()
+    a = robot.angles(q)  # (F, nv): a continuous joint's (cos, sin) as an angle
     f = np.arange(len(q))
-    for v in np.flatnonzero(unseen.any(0) & ~unseen.all(0)):
-        qi = robot.q_of_v[v]
-        if qi < 0:
-            continue
+    todo = np.flatnonzero(unseen.any(0) & ~unseen.all(0))
+    if not len(todo):
+        return robot.clip(q.copy())
+    for v in todo:
         ok = ~unseen[:, v]
-        vals = np.unwrap(q[ok, qi]) if robot.revolute[qi] else q[ok, qi]
-        q[~ok, qi] = np.interp(f[~ok], f[ok], vals)
-    return robot.clip(q)
+        vals = np.unwrap(a[ok, v]) if robot.turns_v[v] else a[ok, v]
+        a[~ok, v] = np.interp(f[~ok], f[ok], vals)
+    out = q.copy()
+    changed = robot.q_mask(np.isin(np.arange(robot.nv), todo))
+    out[:, changed] = robot.from_angles(a)[:, changed]
+    return robot.clip(out)
 
 
 def _gauge_directions(x: np.ndarray, jac: np.ndarray, w: np.ndarray, P: np.ndarray | None, per_frame: bool,
@@ -79,8 +83,7 @@ def _gauge_directions(x: np.ndarray, jac: np.ndarray, w: np.ndarray, P: np.ndarr
 
 
 def _names_of_v(robot: RobotKinematics) -> list[str]:
-    m = robot.model
-    return [m.names[j] for j in range(1, m.njoints) for _ in range(m.joints[j].nv)]
+    return list(robot.dof_names)
 
 
 def _hold(robot: RobotKinematics, q: np.ndarray, blind: np.ndarray, gauge: np.ndarray,
@@ -90,18 +93,18 @@ def _hold(robot: RobotKinematics, q: np.ndarray, blind: np.ndarray, gauge: np.nd
     Returns (q, free (F, nv))."""
     q = q.copy()
     free = np.ones((len(q), robot.nv), bool)
-    for v in np.flatnonzero(blind | gauge):
-        qi = robot.q_of_v[v]
-        if blind[v]:
-            free[:, v] = False
-            if qi >= 0:
-                q[:, qi] = robot.q_rest[qi]
-        elif per_frame:
-            free[:, v] = False
-        else:
-            free[0, v] = False
-            if qi >= 0:
-                q[:, qi] += robot.q_rest[qi] - q[0, qi]
+    free[:, blind] = False
+    held = robot.q_mask(blind)
+    q[:, held] = robot.q_rest[held]
+    shift = gauge & ~blind
+    if per_frame:
+        free[:, shift] = False
+    elif shift.any():  # the whole path turned so that the gauge directions sit at rest in frame 0
+        free[0, shift] = False
+        a = robot.angles(q)
+        a[:, shift] += robot.angles(robot.q_rest)[shift] - a[0, shift]
+        moved = robot.q_mask(shift)
+        q[:, moved] = robot.from_angles(a)[:, moved]
     if unseen is not None:  # directions no seen point moves in a frame: held there (at their neighbours')
         free &= ~unseen
         q = _fill_unseen(robot, q, unseen & ~(blind | gauge))

@@ -14,9 +14,10 @@ from .kinematics import RobotKinematics
 class JointFit:
     """Joint angles fitted to a robot's motion.
 
-    q (F, nq) radians / metres in Pinocchio's order; joint_names one per q entry; observable (nq,) bool
-    (False: held fixed, see the module docstring); relative (nq,) bool (seen only relative to the first
-    frame); positions (F, J, 3) fitted chain points in the reconstruction's frame (metres when the
+    q (F, nq) radians / metres in Pinocchio's order (a continuous joint as (cos, sin)); joint_names one
+    per degree of freedom (nv: one per moving joint, mimic joints excluded), as are observable (nv,) bool
+    (False: held fixed, see the module docstring) and relative (nv,) bool (seen only relative to the
+    first frame); :attr:`angles` (F, nv) one angle per joint (radians, metres for prismatic joints); positions (F, J, 3) fitted chain points in the reconstruction's frame (metres when the
     reconstruction is); residual_3d (F,) RMS distance to the reconstructed points; residual_px (F,) RMS
     reprojection error or None; converged (F,) bool; scale, rotation (3, 3), translation (3,) the
     similarity from the robot's base frame to the reconstruction's; cameras (F, 2, 3) and
@@ -49,6 +50,16 @@ class JointFit:
     @property
     def n_frames(self) -> int:
         return len(self.q)
+
+    @property
+    def angles(self) -> np.ndarray:
+        """(F, nv) one coordinate per joint in the order of ``joint_names``: radians (a continuous joint's
+        (cos, sin) as an angle, unwrapped over the frames), metres for prismatic joints. Equal to ``q``
+        when every joint has one configuration entry."""
+        q = np.asarray(self.q, float)
+        if q.shape[-1] == len(self.joint_names):
+            return q.copy()
+        return self.kinematics().angles(q)
 
     def kinematics(self) -> RobotKinematics:
         """The Pinocchio model used by the fit (rebuilt from ``urdf_path``)."""

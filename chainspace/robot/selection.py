@@ -24,8 +24,9 @@ def _prefer_rest(robot: RobotKinematics, cands: list[dict], key: str, blind: np.
     tied = [c for c in cands if tie(cands[0], c)]
 
     def distance(c):
-        seen = ~(blind | c["gauge"])[robot.v_of_q[robot.v_of_q >= 0]]
-        d = _wrapped(robot, c["q"] - robot.q_rest)[:, robot.v_of_q >= 0][:, seen]
+        seen = ~(blind | c["gauge"])
+        d = robot.angles(c["q"]) - robot.angles(robot.q_rest)  # per degree of freedom (nv)
+        d = np.where(robot.turns_v, (d + np.pi) % (2 * np.pi) - np.pi, d)[:, seen]
         return float(np.abs(d).mean()) if d.size else 0.0
 
     tied.sort(key=distance)
@@ -66,7 +67,7 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
         out = _smooth_lm(robot, robot.continuous(q), tracks, w, view, r["free_prior"], np.ones(6, bool), max_iter,
                          tol, delta, prior)
         n_iter += out[5]
-        return _smoothed_objective(prior, out[0], out[2], w, delta), out
+        return _smoothed_objective(prior, robot.angles(out[0]), out[2], w, delta), out
 
     def score(r, q, view):
         objective, out = smoothed(r, q, view)

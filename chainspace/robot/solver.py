@@ -76,7 +76,7 @@ def _motion_prior(unseen: np.ndarray, mu: float, decay_frames: float):
 
 def _smoothed_objective(prior, q: np.ndarray, rn: np.ndarray, w: np.ndarray, delta: float | None) -> float:
     """What :func:`_smooth_lm` minimises: robust residuals (norms rn (F, J), weights w, Huber threshold
-    delta) plus the motion prior q' prior q'."""
+    delta) plus the motion prior q' prior q' (q: the angles (F, nv), :meth:`RobotKinematics.angles`)."""
     qf = q.reshape(-1)
     return float((w * _huber(rn, delta)[0]).sum()) + float(qf @ (prior @ qf))
 
@@ -116,14 +116,14 @@ def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.
         pos, jac = robot.jacobians(q)
         pred, y = view.apply(pos)
         res = pred - tz
-        return pos, jac, y, res, _smoothed_objective(prior, q, np.linalg.norm(res, axis=-1), w, delta)
+        return pos, jac, y, res, _smoothed_objective(prior, robot.angles(q), np.linalg.norm(res, axis=-1), w, delta)
 
     pos, jac, y, res, cost = evaluate(q, view)
     lam, converged, it = 1e-4, False, 0
     for it in range(1, max_iter + 1):
         ww = w * _huber(np.linalg.norm(res, axis=-1), delta)[1]
         Hqq, Hqc, gq, Hcc, gc = _normal_equations(view, jac, y, res, ww, free, free_view)
-        gq = gq.reshape(-1) + prior @ q.reshape(-1)
+        gq = gq.reshape(-1) + prior @ robot.angles(q).reshape(-1)  # angles (F, nv): q itself without continuous joints
         gq[frozen] = 0.0
         Hx = Hqc.reshape(N, nc)
         diag_q = np.einsum("fvv->fv", Hqq).reshape(-1) + prior.diagonal()

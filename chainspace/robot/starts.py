@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kinematics import RobotKinematics, _random_q, _rest_distance, _seeded, _wrapped
+from .kinematics import RobotKinematics, _held_q, _random_q, _rest_distance, _seeded, _wrapped
 from .views import _View, _align, _camera_view
 from .solver import _sequence_lm
 
@@ -172,9 +172,10 @@ def _branch_near_rest(robot: RobotKinematics, Y: np.ndarray, w: np.ndarray, view
     rest pose is taken, found by IK from many seeds.
     """
     rng = np.random.default_rng(seed)
-    seeds = _random_q(robot, rng, n_seeds) if robot.euclidean else np.broadcast_to(robot.q_rest, (n_seeds, robot.nq))
+    seeds = _random_q(robot, rng, n_seeds)
     seeds = np.concatenate([robot.q_rest[None], robot.q_seed[None], q_now[None], seeds])
-    seeds[:, ~free] = q_now[~free] if robot.euclidean else seeds[:, ~free]
+    held = _held_q(robot, free)  # the q entries of the held directions (both of a continuous joint's)
+    seeds[:, held] = q_now[held]
     n = len(seeds)
     v = _View(view.S, view.R, view.T, np.zeros(n, int))
     q, _, rn, _, _, _ = _sequence_lm(robot, seeds, np.broadcast_to(Y, (n,) + Y.shape),

@@ -136,7 +136,8 @@ def validate(fit: Any, truth_q: Any = None, *, thresholds: dict[str, float] | No
     fit
         A :class:`chainspace.JointFit`.
     truth_q
-        The true joint angles (F, nq) in Pinocchio order, when known.
+        The true joint angles (F, nq) in Pinocchio order, or (F, nv) one angle per joint (radians,
+        metres for prismatic joints; as ``fit.angles``), when known.
     thresholds
         Overrides of :data:`DEFAULT_THRESHOLDS`: ``joint_rms_deg`` (every judged joint),
         ``error_3d_pct_reach`` (3D error of the fitted robot against the truth, or against the
@@ -158,8 +159,10 @@ def validate(fit: Any, truth_q: Any = None, *, thresholds: dict[str, float] | No
     tq = None
     if truth_q is not None:
         tq = np.asarray(truth_q, float)
+        if tq.ndim == 2 and tq.shape == (F, robot.nv) and robot.nv != robot.nq:
+            tq = robot.from_angles(tq)  # given as angles, one per joint (a saved joint_angles.csv)
         if tq.shape != q.shape:
-            raise TrackError(f"truth_q has shape {tq.shape}, the fit's q {q.shape}")
+            raise TrackError(f"truth_q has shape {tq.shape}, the fit's q {q.shape} (or angles ({F}, {robot.nv}))")
     joints = _joint_errors(robot, fit, q, tq)
 
     # 3D error of the fitted robot (base frame) against the truth; else against the reconstruction
@@ -202,19 +205,29 @@ def validate(fit: Any, truth_q: Any = None, *, thresholds: dict[str, float] | No
 
 
 def _joint_errors(robot, fit, q, tq) -> list[dict[str, Any]]:
+    """One row per degree of freedom (``fit.joint_names``): angles compared in radians (a continuous
+    joint's (cos, sin) as one angle, :meth:`RobotKinematics.angles`), prismatic joints in metres."""
     out = []
-    relative = np.asarray(getattr(fit, "relative", np.zeros(len(fit.joint_names), bool)), bool)
-    for k, name in enumerate(fit.joint_names):
-        obs, rel = bool(fit.observable[k]), bool(relative[k]) if relative.size else False
+    a = robot.angles(q)
+    ta = None if tq is None else robot.angles(tq)
+    names = list(fit.joint_names) if len(fit.joint_names) == robot.nv else list(robot.joint_names)
+    relative = np.asarray(getattr(fit, "relative", np.zeros(len(names), bool)), bool)
+    observable = np.asarray(fit.observable, bool)
+    if observable.size != robot.nv:  # a fit saved with one flag per q entry: flags of each joint's first entry
+        first = [int(np.flatnonzero(robot._qv[:, v])[0]) for v in range(robot.nv)]
+        observable = observable[first]
+        relative = relative[first] if relative.size else relative
+    for k, name in enumerate(names):
+        obs, rel = bool(observable[k]), bool(relative[k]) if relative.size else False
         status = "observable" if obs else ("relative to frame 0" if rel else "not observable")
         row: dict[str, Any] = {"name": name, "status": status, "judged": obs or rel, "rms": None, "max": None,
-                               "unit": "deg" if robot.revolute[k] or not robot.limited[k] else "mm"}
-        if tq is not None and (obs or rel):
-            d = q[:, k] - tq[:, k]
-            if robot.revolute[k]:
+                               "unit": "mm" if robot.prismatic_v[k] else "deg"}
+        if ta is not None and (obs or rel):
+            d = a[:, k] - ta[:, k]
+            if robot.turns_v[k]:
                 d = _wrap(d)
             if rel:  # seen only up to a constant: compare after removing the mean offset
-                d = _wrap(d - np.angle(np.mean(np.exp(1j * d)))) if robot.revolute[k] else d - d.mean()
+                d = _wrap(d - np.angle(np.mean(np.exp(1j * d)))) if robot.turns_v[k] else d - d.mean()
             scale = np.degrees(1.0) if row["unit"] == "deg" else 1000.0
             row["rms"] = float(np.sqrt(np.mean(d ** 2)) * scale)
             row["max"] = float(np.abs(d).max() * scale)
@@ -231,11 +244,14 @@ def _bone_errors(robot, fit) -> list[dict[str, Any]]:
     if poses is not None and fit.scale:
         rec = np.nanmedian(chain.bone_lengths(poses), axis=0) / fit.scale
     rows = []
-    ok = np.isfinite(rec) if rec is not None else np.zeros(len(urdf_len), bool)
+    variable = {tuple(v) for v in chain.metadata.get("variable_bones", [])}
+    # a bone across a prismatic joint has no one length to compare: reported, not judged
+    judged = np.array([(a, b) not in variable for a, b in chain.links], bool)
+    ok = (np.isfinite(rec) & judged) if rec is not None else np.zeros(len(urdf_len), bool)
     urdf_total, rec_total = float(np.sum(urdf_len[ok])), float(np.sum(rec[ok])) if ok.any() else 0.0
     for k, (a, b) in enumerate(chain.links):
         L = float(urdf_len[k])
-        r = None if rec is None or not np.isfinite(rec[k]) else float(rec[k])
+        r = float(rec[k]) if ok[k] else None
         # shares of the total over the bones the reconstruction has: scale-free, so comparable
         us = 100 * L / urdf_total if r is not None and urdf_total > 0 else None
         rs = 100 * r / rec_total if r is not None and rec_total > 0 else None

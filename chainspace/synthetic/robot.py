@@ -56,16 +56,17 @@ class RobotTrial:
 # trajectories
 # ---------------------------------------------------------------------------------------------------
 def _window(robot: RobotKinematics, margin: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
-    """Per q entry the range a trajectory may use: the joint limits, but at most 72 degrees either side
+    """Per degree of freedom (nv; q entry when every joint has one) the range a trajectory may use: the joint limits, but at most 72 degrees either side
     of the rest pose for revolute joints, less a margin at each end. Within it the fit's rule for
     discrete ambiguities (of two wrist configurations that put every tracked point in the same place,
     the one nearer the rest pose; see :mod:`chainspace.robot.fit`) picks the true one."""
     span = 0.4 * np.pi
-    lo = np.where(robot.limited, robot.lower, robot.q_rest - span)
-    hi = np.where(robot.limited, robot.upper, robot.q_rest + span)
-    rev = robot.revolute
-    lo = np.where(rev, np.maximum(lo, robot.q_rest - span), lo)
-    hi = np.where(rev, np.minimum(hi, robot.q_rest + span), hi)
+    rest = robot.angles(robot.q_rest)  # per degree of freedom (nv): continuous joints as angles
+    lo = np.where(robot.limited_v, robot.lower_v, rest - span)
+    hi = np.where(robot.limited_v, robot.upper_v, rest + span)
+    rev = robot.turns_v
+    lo = np.where(rev, np.maximum(lo, rest - span), lo)
+    hi = np.where(rev, np.minimum(hi, rest + span), hi)
     pad = margin * (hi - lo)
     return lo + pad, hi - pad
 
@@ -74,13 +75,13 @@ def _sinusoids(robot: RobotKinematics, n_frames: int, fps: float, rng: np.random
                amplitude: float, max_hz: float) -> np.ndarray:
     t = np.arange(n_frames)[:, None, None] / float(fps)
     lo, hi = _window(robot)
-    freq = rng.uniform(0.2, 1.0, (1, robot.nq, 3)) * max_hz
-    phase = rng.uniform(0, 2 * np.pi, (1, robot.nq, 3))
-    weights = rng.dirichlet(np.ones(3), robot.nq)[None]
+    freq = rng.uniform(0.2, 1.0, (1, robot.nv, 3)) * max_hz
+    phase = rng.uniform(0, 2 * np.pi, (1, robot.nv, 3))
+    weights = rng.dirichlet(np.ones(3), robot.nv)[None]
     wave = (weights * np.sin(2 * np.pi * freq * t + phase)).sum(-1)
-    centre = 0.5 * (lo + hi) + rng.uniform(-0.5, 0.5, robot.nq) * (hi - lo) * (1 - amplitude)
-    q = centre + amplitude * 0.5 * (hi - lo) * wave / max(np.abs(wave).max(), 1e-12)
-    return robot.clip(np.where(robot.v_of_q >= 0, q, robot.q_rest))  # multi-dof joints stay at rest
+    centre = 0.5 * (lo + hi) + rng.uniform(-0.5, 0.5, robot.nv) * (hi - lo) * (1 - amplitude)
+    a = centre + amplitude * 0.5 * (hi - lo) * wave / max(np.abs(wave).max(), 1e-12)
+    return robot.clip(robot.from_angles(a))  # continuous joints' angles as (cos, sin)
 
 
 def conditioning(robot: RobotKinematics, q: np.ndarray, seen: np.ndarray | None = None) -> np.ndarray:
@@ -103,7 +104,7 @@ def conditioning(robot: RobotKinematics, q: np.ndarray, seen: np.ndarray | None 
 def _typical_conditioning(robot: RobotKinematics, rng: np.random.Generator) -> float:
     """Median :func:`conditioning` of random configurations inside the trajectory window."""
     lo, hi = _window(robot)
-    probe = robot.clip(np.where(robot.v_of_q >= 0, rng.uniform(lo, hi, (64, robot.nq)), robot.q_rest))
+    probe = robot.clip(robot.from_angles(rng.uniform(lo, hi, (64, robot.nv))))
     return float(np.median(conditioning(robot, probe)))
 
 
@@ -176,7 +177,7 @@ def _working_pose(robot: RobotKinematics, tip: int, rng: np.random.Generator, n:
     tip in front of the robot between its base and shoulder height."""
     pin = robot.pin
     lo, hi = _window(robot, 0.2)
-    qs = robot.clip(np.where(robot.v_of_q >= 0, rng.uniform(lo, hi, (n, robot.nq)), robot.q_rest))
+    qs = robot.clip(robot.from_angles(rng.uniform(lo, hi, (n, robot.nv))))
     pos, jac = robot.jacobians(qs)
     base = pos[:, robot.chain.joint_index(robot.chain.root)]
     reach = robot.reach()

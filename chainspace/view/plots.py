@@ -89,15 +89,18 @@ def plot_joint_angles(fit: Any, truth_q: Any, path: str | os.PathLike, *, fps: f
                       joints: Sequence[str] | None = None, overwrite: bool = False) -> Path:
     """Fitted joint angles over time (degrees) against the truth, one panel per joint.
 
-    ``fit.q`` (F, nq) rad; ``truth_q`` (F, nq) rad or None. Joints the fit marks not observable are
-    drawn dashed. Joints it marks seen only relative to the first frame (``fit.relative``) are drawn,
-    fitted and truth alike, as their change since frame 0, and labelled "relative to frame 0".
-    ``joints`` picks a subset by name.
+    ``fit.angles`` (F, nv) rad, one per joint (``fit.q`` where there are none); ``truth_q`` the same
+    or (F, nq) in Pinocchio's layout, or None. Joints the fit marks not observable are drawn dashed.
+    Joints it marks seen only relative to the first frame (``fit.relative``) are drawn, fitted and
+    truth alike, as their change since frame 0, and labelled "relative to frame 0". ``joints`` picks a
+    subset by name.
     """
     check_writable([path], overwrite)
-    q = np.asarray(fit.q, dtype=float)
+    q = np.asarray(getattr(fit, "angles", fit.q), dtype=float)  # one angle per joint (continuous: radians)
     names = _q_names(fit)
     truth = None if truth_q is None else np.asarray(truth_q, dtype=float)
+    if truth is not None and truth.shape != q.shape and truth.shape == np.shape(fit.q) and hasattr(fit, "kinematics"):
+        truth = fit.kinematics().angles(truth)  # truth in Pinocchio's q layout: as angles too
     if truth is not None and truth.shape != q.shape:
         raise TrackError(f"truth joint angles have shape {truth.shape}, the fit's {q.shape}")
     pick = list(range(len(names))) if joints is None else [names.index(j) for j in joints if j in names]

@@ -265,9 +265,9 @@ def _robot_models(urdf_path: Path) -> tuple[Any, Any]:
     (:func:`chainspace.io.urdf.resolve_mesh`); missing meshes are drawn as primitives, with a warning."""
     import pinocchio as pin
 
-    from ..io.urdf import visual_urdf
+    from ..io.urdf import build_model, visual_urdf
 
-    model = pin.buildModelFromUrdf(str(urdf_path))
+    model = build_model(urdf_path)  # mimic joints driven by their leader, as the fit's model
     xml = visual_urdf(urdf_path)
     dirs = [str(p) for p in list(urdf_path.resolve().parents)[:4]]
     visual = pin.buildGeomFromUrdfString(model, xml, pin.GeometryType.VISUAL, package_dirs=dirs)
