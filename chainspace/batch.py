@@ -301,7 +301,8 @@ def _accepts(func: Callable[..., Any], keyword: str) -> bool:
         params = inspect.signature(func).parameters
     except (TypeError, ValueError):
         return False
-    return keyword in params or any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())
+    p = params.get(keyword)  # named: a **kwargs catch-all does not say the keyword is understood
+    return p is not None and p.kind in (inspect.Parameter.KEYWORD_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)
 
 
 def _options(rec: Recording, stages: dict[str, Callable[..., Any]]) -> dict[str, dict[str, Any]]:
@@ -316,8 +317,9 @@ def _options(rec: Recording, stages: dict[str, Callable[..., Any]]) -> dict[str,
         if not takers:
             what = {"intrinsics": "intrinsics are", "fps": "a frame rate (fps) is"}[key]
             raise ChainspaceError(f"{rec.manifest}:{rec.line}: column {key!r}: {what} not supported by this "
-                                  f"version of chainspace for this recording ({' and '.join(stages)} do not "
-                                  f"take {key}=); leave the column empty")
+                                  f"version of chainspace for this recording ({' and '.join(stages)} "
+                                  f"{'does' if len(stages) == 1 else 'do'} not take {key}=); leave the "
+                                  "column empty")
         for stage in takers:
             kwargs[stage][key] = value
     return kwargs

@@ -156,27 +156,35 @@ def test_process_recording_is_atomic_and_refuses_foreign_folders(manifest, tmp_p
     assert figures["status"] == "ok" and (out / rec.name / B.DONE_MARKER).is_file()
 
 
-def test_fps_and_intrinsics_go_only_to_stages_that_take_them(manifest, tmp_path, monkeypatch):
+def test_fps_and_intrinsics_go_only_to_stages_that_take_them(manifest, tmp_path):
+    import inspect
+
     rec = cs.read_manifest(manifest, strict=False)[0]
-    rec.fps, rec.intrinsics = 30.0, tmp_path / "K.npy"
-    seen = {}
+    rec.intrinsics = tmp_path / "K.npy"
 
-    def with_intrinsics(tracks, chain, *, intrinsics=None, **kwargs):
-        seen["intrinsics"] = intrinsics
-
-    def without(tracks, chain, **kw_only_named):
+    def taking(tracks, chain, *, intrinsics=None, fps=None):
         pass
 
-    if "fps" not in __import__("inspect").signature(cs.reconstruct).parameters:
-        with pytest.raises(cs.ChainspaceError, match="column 'fps': a frame rate .* not supported by this version"):
-            B._options(rec, {"reconstruct": cs.reconstruct})
-    rec.fps = None
-    if "intrinsics" not in __import__("inspect").signature(cs.reconstruct).parameters:
+    def not_taking(tracks, chain, *, confidence=None, **kwargs):  # a catch-all does not count
+        pass
+
+    K = str(rec.intrinsics)
+    assert B._options(rec, {"reconstruct": taking}) == {"reconstruct": {"intrinsics": K}}
+    assert B._options(rec, {"reconstruct": not_taking, "fit": taking}) == {"reconstruct": {}, "fit": {"intrinsics": K}}
+    with pytest.raises(cs.ChainspaceError, match=r"manifest\.csv:2: column 'intrinsics': intrinsics are not "
+                                                 r"supported by this version .*reconstruct does not take"):
+        B._options(rec, {"reconstruct": not_taking})
+    rec.intrinsics, rec.fps = None, 30.0
+    assert B._options(rec, {"reconstruct": not_taking, "fit": taking}) == {"reconstruct": {}, "fit": {"fps": 30.0}}
+    with pytest.raises(cs.ChainspaceError, match=r"column 'fps': a frame rate \(fps\) is not supported"):
+        B._options(rec, {"reconstruct": not_taking})
+
+    # and through process_recording, with this version's reconstruct
+    if "intrinsics" not in inspect.signature(cs.reconstruct).parameters:
+        rec.fps, rec.intrinsics = None, tmp_path / "K.npy"
         with pytest.raises(cs.ChainspaceError, match="intrinsics are not supported by this version"):
-            B._options(rec, {"reconstruct": cs.reconstruct})
-    assert B._options(rec, {"reconstruct": with_intrinsics}) == {"reconstruct": {"intrinsics": str(rec.intrinsics)}}
-    assert B._options(rec, {"reconstruct": without, "fit": with_intrinsics}) == {
-        "reconstruct": {"intrinsics": str(rec.intrinsics)}, "fit": {"intrinsics": str(rec.intrinsics)}}
+            B.process_recording(rec, tmp_path / "out")
+        assert not (tmp_path / "out" / rec.name).exists()
 
 
 def test_cli_exit_codes(manifest, tmp_path):
