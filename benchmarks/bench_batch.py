@@ -10,14 +10,16 @@ written as ``chainspace batch`` does (chainspace.batch.process_recording).
 
 "Single-recording time" is measured two ways, and the table gives the ratio for each:
 
+* **in-process**: the 40 recordings one after the other in one warm process (imports done) with
+  ``process_recording``, divided by 40: the pure processing time, measured in the same conditions as
+  the batch (the machine may be shared: a single time taken at a quiet moment would flatter it);
 * **command**: the wall time of ``chainspace reconstruct TRACKS --chain human17 --out DIR`` in a fresh
-  process (what running the recordings one by one costs: the interpreter and imports included);
-* **in-process**: ``process_recording`` in a warm process (imports done), the pure processing time.
+  process (what running the recordings one by one costs: the interpreter and imports included).
 
 The batch is timed end to end through ``run_batch`` (manifest read, local cluster started and closed,
 summary written), and again on a cluster started beforehand (``scheduler=`` a Client), which leaves out
-the cluster's start and stop. Medians of ``--repeat`` runs; the machine may be shared (the load average
-is printed).
+the cluster's start and stop. "cores used" is the CPU time of the recordings (``cpu_seconds``) over the
+batch's wall time: below the number of workers when the machine is shared.
 """
 
 from __future__ import annotations
@@ -60,12 +62,21 @@ def time_command(tracks: Path, out: Path) -> float:
     return time.perf_counter() - t
 
 
+def _warm() -> None:
+    import importlib
+
+    from chainspace.batch import _PRELOAD
+
+    for module in _PRELOAD:
+        importlib.import_module(module)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--recordings", type=int, default=40)
     ap.add_argument("--frames", type=int, default=300)
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
-    ap.add_argument("--repeat", type=int, default=3, help="runs of each single-recording measurement")
+    ap.add_argument("--repeat", type=int, default=3, help="runs of the single-recording command")
     args = ap.parse_args(argv)
     n, workers = args.recordings, args.workers
     say = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
@@ -77,10 +88,12 @@ def main(argv: list[str] | None = None) -> int:
         say(f"{n} recordings x {args.frames} frames in {root}; {workers} workers; load {os.getloadavg()}")
 
         process_recording(recs[0], root / "warm")  # imports, first-call costs
-        warm = [process_recording(recs[1 + i % (n - 1)], root / f"single_{i}")["seconds"]
-                for i in range(args.repeat)]
-        t_inproc = statistics.median(warm)
-        say(f"in-process single: {', '.join(f'{t:.2f}' for t in warm)} s")
+        t = time.perf_counter()
+        serial = [process_recording(rec, root / "serial") for rec in recs]
+        t_serial = time.perf_counter() - t
+        t_inproc = t_serial / n
+        cpu_serial = sum(f["cpu_seconds"] for f in serial)
+        say(f"in-process, one after the other: {t_serial:.1f} s ({t_inproc:.2f} s each, CPU {cpu_serial:.1f} s)")
         cmd = [time_command(recs[i % n].tracks, root / f"cmd_{i}") for i in range(args.repeat)]
         t_cmd = statistics.median(cmd)
         say(f"command single: {', '.join(f'{t:.2f}' for t in cmd)} s")
@@ -95,27 +108,31 @@ def main(argv: list[str] | None = None) -> int:
 
         with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                           silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
-            client.run(lambda: __import__("chainspace.batch") and None)  # warm workers, as a running cluster is
+            client.run(_warm)  # a running cluster's workers have done this already
             t = time.perf_counter()
             res2 = run_batch(manifest, root / "batch_running", scheduler=client, progress=False)
             t_running = time.perf_counter() - t
         assert res2.ok, res2
         say(f"run_batch, cluster already running: {t_running:.2f} s")
         load = os.getloadavg()
+        cores = {name: sum(r["cpu_seconds"] for r in r_.rows) / wall
+                 for name, r_, wall in (("local", res, t_local), ("running", res2, t_running))}
     finally:
         shutil.rmtree(root, ignore_errors=True)
 
     print(f"{n} human17 recordings x {args.frames} frames, {workers} workers (threads_per_worker=1), "
-          f"{os.cpu_count()} cores, load average at the end {load[0]:.1f}")
+          f"{os.cpu_count()} cores, load average at the end {load[0]:.1f}; one after the other in one process: "
+          f"{t_serial:.1f} s wall, {cpu_serial:.1f} s CPU")
     print()
-    print("| batch run | wall s | single-recording basis | single s | target s (1.2 x single x "
+    print("| batch run | wall s | cores used | single-recording basis | single s | target s (1.2 x single x "
           f"{n} / {workers}) | batch / target |")
-    print("|---|---|---|---|---|---|")
-    for name, wall in (("run_batch, local cluster (start + stop included)", t_local),
-                       ("run_batch, cluster already running", t_running)):
-        for basis, single in (("`chainspace reconstruct` command", t_cmd), ("in-process, warm", t_inproc)):
+    print("|---|---|---|---|---|---|---|")
+    for name, key, wall in (("run_batch, local cluster (start + stop included)", "local", t_local),
+                            ("run_batch, cluster already running", "running", t_running)):
+        for basis, single in (("in-process, one after the other", t_inproc), ("`chainspace reconstruct` command", t_cmd)):
             target = 1.2 * single * n / workers
-            print(f"| {name} | {wall:.1f} | {basis} | {single:.2f} | {target:.1f} | {wall / target:.2f} |")
+            print(f"| {name} | {wall:.1f} | {cores[key]:.2f} | {basis} | {single:.2f} | {target:.1f} | "
+                  f"{wall / target:.2f} |")
     return 0
 
 

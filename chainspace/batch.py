@@ -50,7 +50,7 @@ DONE_MARKER = "done.json"
 
 # The summary's columns, in order (a recording's figures dict has these keys, None where not known).
 SUMMARY_COLUMNS = (
-    "name", "status", "skipped", "kind", "chain", "frames", "seconds", "converged", "reprojection_px",
+    "name", "status", "skipped", "kind", "chain", "frames", "seconds", "cpu_seconds", "converged", "reprojection_px",
     "error_3d_mm", "fit_converged_fraction", "fit_reprojection_px", "fit_residual_3d_mm",
     "worst_joint", "worst_joint_rms", "worst_joint_unit", "worst_bone_error_pct", "validation_passed",
     "error", "line", "folder",
@@ -417,7 +417,8 @@ def process_recording(rec: Recording, out_dir: str | os.PathLike) -> dict[str, A
     Returns
     -------
     dict
-        Keys :data:`SUMMARY_COLUMNS`: ``frames``, ``seconds`` (wall time of the processing),
+        Keys :data:`SUMMARY_COLUMNS`: ``frames``, ``seconds`` (wall time of the processing) and
+        ``cpu_seconds`` (CPU time of the process meanwhile),
         ``reprojection_px`` (RMS of the reconstruction), ``converged``, ``error_3d_mm`` (with a truth;
         for a robot without one, the fit's 3D residual in the robot's units), and for robots
         ``fit_converged_fraction``, ``fit_reprojection_px``, ``fit_residual_3d_mm``,
@@ -439,7 +440,7 @@ def process_recording(rec: Recording, out_dir: str | os.PathLike) -> dict[str, A
     from .io.tracks import load_tracks
     from .reconstruction.pipeline import reconstruct
 
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     if rec.problem:
         raise ChainspaceError(rec.problem)
     final = Path(out_dir) / rec.name
@@ -477,6 +478,7 @@ def process_recording(rec: Recording, out_dir: str | os.PathLike) -> dict[str, A
             if obj is not None:
                 save_results(obj, tmp)
         fig["seconds"] = time.perf_counter() - start
+        fig["cpu_seconds"] = time.process_time() - cpu_start
         fig["folder"] = str(final)
         write_json(tmp / DONE_MARKER, fig)
     return fig
