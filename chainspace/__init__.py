@@ -77,6 +77,9 @@ _EXPORTS: dict[str, str] = {
     "plot_error_sweep": "view.plots",
     "write_html": "view.viewer",
     "show": "view.viewer",
+    # many recordings at once, on Dask
+    "run_batch": "batch",
+    "read_manifest": "batch",
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__"]

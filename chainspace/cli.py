@@ -702,6 +702,44 @@ def _demo_extras(out: Path, summary: dict, overwrite: bool) -> list[Path]:
     return written
 
 
+@app.command(epilog="Example: chainspace batch recordings.csv --out batch-output --scheduler tcp://head:8786")
+@_guarded
+def batch(
+    manifest: Annotated[Path, typer.Argument(help="CSV with a header row, one recording a row: name,tracks,chain "
+                                                  "and optional urdf,intrinsics,fps,truth (paths relative to "
+                                                  "the manifest).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Folder: one sub-folder per recording, "
+                                                          "summary.csv and summary.html.")],
+    scheduler: Annotated[Optional[str], typer.Option(help="Address of a running Dask scheduler "
+                                                          "(tcp://host:8786); default a local cluster.")] = None,
+    workers: Annotated[Optional[int], typer.Option(help="Workers of the local cluster (default one per "
+                                                        "core).", min=1)] = None,
+    progress: Annotated[bool, typer.Option(help="Show a progress bar on stderr.")] = True,
+) -> None:
+    """Reconstruct (and for robots fit and validate) every recording of a manifest on Dask.
+
+    Each recording's files go to OUT/NAME/ (written to a temporary folder renamed at the end); a
+    recording finished by an earlier run is skipped, so an interrupted batch resumes. A failing
+    recording is reported in the summary and does not stop the others. Prints the summary table.
+    Exit code 1 if some recording failed or did not converge, 2 for a manifest that cannot be used.
+    """
+    from .batch import run_batch
+
+    result = run_batch(manifest, out, scheduler=scheduler, n_workers=workers, progress=progress)
+    shown = ("name", "status", "frames", "seconds", "reprojection_px", "worst_joint", "worst_joint_rms", "error")
+    typer.echo("| " + " | ".join(shown) + " |\n|" + "---|" * len(shown))
+    for row in result.rows:
+        cells = [row.get(k) for k in shown]
+        typer.echo("| " + " | ".join("" if v is None else f"{v:.3g}" if isinstance(v, float) else str(v)
+                                     for v in cells) + " |")
+    for p in (result.summary_csv, result.summary_html):
+        _say(f"wrote {p}")
+    _say(repr(result))
+    if not result.ok:
+        raise _fail(f"{len(result.failed)} recordings failed, {len(result.not_good)} did not converge or "
+                    "failed validation (see the summary)", EXIT_NOT_GOOD)
+
+
 def main() -> None:  # pragma: no cover - the console script
     app()
 
