@@ -314,9 +314,10 @@ def _options(rec: Recording, stages: dict[str, Callable[..., Any]]) -> dict[str,
         if value is None:
             continue
         takers = [stage for stage, func in stages.items() if _accepts(func, key)]
+        if not takers and key == "fps":
+            continue  # the frame rate is metadata where no stage models time (the reconstruction)
         if not takers:
-            what = {"intrinsics": "intrinsics are", "fps": "a frame rate (fps) is"}[key]
-            raise ChainspaceError(f"{rec.manifest}:{rec.line}: column {key!r}: {what} not supported by this "
+            raise ChainspaceError(f"{rec.manifest}:{rec.line}: column {key!r}: intrinsics are not supported by this "
                                   f"version of chainspace for this recording ({' and '.join(stages)} "
                                   f"{'does' if len(stages) == 1 else 'do'} not take {key}=); leave the "
                                   "column empty")
