@@ -35,7 +35,7 @@ from .kcs import (bone_observations, fit_translations, kcs_factorize, reprojecti
 from ..metrics import error_3d
 from .refine import refine_bones
 
-__all__ = ["reconstruct", "Reconstruction", "METHODS", "MIN_FRAMES", "MIN_POINTS"]
+__all__ = ["reconstruct", "Reconstruction", "METHODS", "MIN_FRAMES", "MIN_POINTS", "track_score"]
 
 METHODS = ("default", "kcs", "rigid")
 MIN_FRAMES = 2  # frames with at least MIN_POINTS visible points
@@ -62,6 +62,14 @@ class Reconstruction:
         (px^2, after every block) and its settings "noise" (estimated track noise, px), "delta"
         (Huber threshold, px) and "lam_smooth" (one value each).
     timings : {stage: seconds}.
+    intrinsics : with a calibrated camera, ``{"K": (3, 3), "dist": (5,) or None}``; else None.
+        Then ``cameras`` and ``translations`` are the weak-perspective cameras of the last pass in
+        *normalised image coordinates* (undistorted rays x/z, y/z): ``cameras[k] = R_k[:2] / Z_k``
+        with ``R_k`` the camera's rotation relative to the pose axes of frame k and ``Z_k`` the
+        depth of the subject's centroid (pose units), ``translations[k]`` the ray of that centroid.
+    points_camera : with intrinsics, (F, J, 3) the joints in camera axes (x right, y down, z along
+        the view, pose units: the global scale is the initial pose's, as everywhere); the root
+        depth of frame k is ``points_camera[k, root, 2]``. None without intrinsics.
     """
 
     poses: np.ndarray
@@ -77,10 +85,17 @@ class Reconstruction:
     message: str
     history: dict[str, dict[str, list[float]]] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
+    intrinsics: dict | None = None
+    points_camera: np.ndarray | None = None
 
     def reprojection_error(self) -> float:
-        """Confidence-weighted RMS distance (image units) between the tracks and the reprojection."""
+        """Confidence-weighted RMS distance (image units) between the tracks and the reprojection
+        (with intrinsics: the perspective projection of ``points_camera``, pixels)."""
         w = np.ones(self.tracks.shape[:2]) if self.confidence is None else self.confidence
+        if self.intrinsics is not None:
+            from .perspective import rays_to_pixels
+            return _rms(self.tracks, w, rays_to_pixels(self.points_camera, self.intrinsics["K"],
+                                                         self.intrinsics["dist"]))
         return reprojection_rms(self.tracks, w, self.poses, self.cameras, self.translations)
 
     def __repr__(self) -> str:
@@ -92,6 +107,13 @@ class Reconstruction:
             f"after {self.n_iter} iterations, reprojection {self.reprojection_error():.3g} px, "
             f"{total:.2f} s: {self.message})"
         )
+
+
+def _rms(tracks, weights, pred) -> float:
+    seen = np.isfinite(tracks).all(-1) & np.isfinite(pred).all(-1)
+    w = np.where(seen, weights, 0.0)
+    d2 = np.where(seen, ((np.where(seen[..., None], tracks - np.nan_to_num(pred), 0.0)) ** 2).sum(-1), 0.0)
+    return float(np.sqrt((w * d2).sum() / max(w.sum(), 1e-300)))
 
 
 # ---------------------------------------------------------------------------------------- validation
@@ -311,6 +333,8 @@ def reconstruct(
     progress: bool = False,
     n_basis: int | None = None,
     refine_options: dict | None = None,
+    intrinsics: Any = None,
+    perspective_iter: int = 4,
 ) -> Reconstruction:
     """3D poses and weak-perspective cameras of ``chain`` from 2D ``tracks`` of one camera.
 
@@ -341,6 +365,14 @@ def reconstruct(
     refine_options
         Weights of the refinement objective: lam_len, lam_smooth, lam_prior, delta (see
         :func:`chainspace.reconstruction.refine.refine_bones`).
+    intrinsics
+        The calibrated camera that filmed the tracks (pixels): a (3, 3) matrix ``K``, a dict
+        ``{"K": K, "dist": (k1, k2, p1, p2[, k3])}`` (OpenCV distortion) or an object with ``K``
+        (and ``dist``) attributes. The tracks are undistorted to rays and the perspective is
+        corrected (:mod:`chainspace.reconstruction.perspective`): the weak-perspective stages run
+        on rays corrected with the depths of the previous pass, ``perspective_iter`` passes at
+        most (stopping when the corrected rays settle). See ``Reconstruction.intrinsics`` for what
+        cameras and translations mean then.
 
     Raises
     ------
@@ -361,9 +393,19 @@ def reconstruct(
         raise TrackError(f"chain must be a KinematicChain, not {type(chain).__name__} "
                          "(load one with chainspace.load_chain or chainspace.shipped)")
     _check_options(chain, max_iter, tol, n_basis, refine_options)
+    if not (isinstance(perspective_iter, (int, np.integer)) and not isinstance(perspective_iter, bool)
+            and perspective_iter >= 1):
+        raise TrackError(f"perspective_iter must be a whole number >= 1, not {perspective_iter!r}")
+    K = dist = None
+    if intrinsics is not None:
+        from .perspective import check_intrinsics
+        K, dist = check_intrinsics(intrinsics)
     W, c, given, X0, T = _check_inputs(tracks, chain, init_pose, confidence, truth)
     try:
         with np.errstate(all="ignore"), _one_blas_thread():
+            if K is not None:
+                return _run_perspective(W, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis,
+                                        refine_options, K, dist, int(perspective_iter))
             return _run(W, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis, refine_options)
     except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
         if isinstance(exc, TrackError):
@@ -412,6 +454,75 @@ def _run(W_in, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis,
     return rec
 
 
+def _run_perspective(W_px, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis, refine_options,
+                     K, dist, n_pass):
+    """:func:`_run` on the camera's rays, corrected for perspective pass after pass (see
+    :mod:`chainspace.reconstruction.perspective`)."""
+    from .perspective import camera_points, centring_rotations, pixels_to_rays, rays_to_pixels, turn_rays
+
+    rays = pixels_to_rays(W_px, K, dist)
+    bad = np.isfinite(W_px).all(-1) & ~np.isfinite(rays).all(-1)
+    if bad.mean() > 0.5:
+        raise TrackError(f"intrinsics: the lens distortion cannot be undone for {bad.mean():.0%} of the tracked "
+                         "points (the distortion model is not one-to-one there): check dist and K")
+    c = np.where(np.isfinite(rays).all(-1), c, 0.0)
+    if ((c > 0).sum(1) >= MIN_POINTS).sum() < MIN_FRAMES:
+        raise TrackError("intrinsics: after undistortion too few points are left to reconstruct")
+    rays = np.where((c > 0)[..., None], rays, np.nan)
+    opts = dict(refine_options or {})
+    if "delta" in opts:  # given in pixels: rays are pixels / f
+        opts["delta"] = opts["delta"] / float(np.sqrt(K[0, 0] * K[1, 1]))
+    # virtual cameras turned towards the subject in every frame: there weak perspective is accurate
+    Q = centring_rotations(rays, c)
+    rays_real, rays = rays, turn_rays(rays, Q)
+    persp: dict[str, list[float]] = {"reprojection": [], "change": []}
+    timings: dict[str, float] = {}
+    Wc, rec = rays, None
+    for i in range(n_pass):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            rec = _run(Wc, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis, opts)
+        for k, v in rec.timings.items():
+            timings[k] = timings.get(k, 0.0) + v
+        pts, d, Z = camera_points(rec.poses, rec.cameras, rec.translations, c)
+        pts = pts @ Q  # virtual camera axes -> the real camera's
+        persp["reprojection"].append(_rms(W_px, c, rays_to_pixels(pts, K, dist)))
+        scale = np.sqrt((rec.cameras**2).sum(-1)).mean(-1)
+        corrected = rays * (1.0 + scale[:, None] * d)[..., None]
+        seen = c > 0
+        size = _spread(rays, seen)
+        change = float(np.abs(np.where(seen[..., None], corrected - Wc, 0.0)).max()) / size
+        persp["change"].append(change)
+        if progress:
+            print(f"chainspace: perspective pass {i + 1}: reprojection {persp['reprojection'][-1]:.3g} px, "
+                  f"rays moved {change:.2g} of the subject's size", file=sys.stderr)
+        if change < 1e-3 or i == n_pass - 1:
+            break
+        Wc = corrected
+    rec.tracks = W_px
+    # cameras in the real camera's axes: R_k = Q_k^T R_virtual; translations the real centroid rays
+    rec.cameras = _real_cameras(rec.cameras, Q)
+    cen = (c[..., None] * np.nan_to_num(pts)).sum(1) / np.maximum(c.sum(1), 1e-300)[:, None]
+    rec.translations = cen[:, :2] / cen[:, 2:]
+    rec.intrinsics = {"K": K, "dist": dist}
+    rec.points_camera = pts
+    rec.history["perspective"] = persp
+    rec.timings = timings
+    rec.message += (f"; perspective: {len(persp['change'])} pass(es), reprojection "
+                    f"{persp['reprojection'][-1]:.3g} px")
+    if not rec.converged:
+        warnings.warn(f"chainspace.reconstruct: {rec.message}", ConvergenceWarning, stacklevel=3)
+    return rec
+
+
+def _real_cameras(P, Q):
+    """Weak-perspective cameras s R_v[:2] of the virtual cameras Q (F, 3, 3) -> s (Q^T R_v)[:2]."""
+    s = np.sqrt((P**2).sum(-1)).mean(-1)
+    r1, r2 = P[:, 0] / s[:, None], P[:, 1] / s[:, None]
+    Rv = np.stack([r1, r2, np.cross(r1, r2)], 1)
+    return s[:, None, None] * (np.swapaxes(Q, 1, 2) @ Rv)[:, :2]
+
+
 def _spread(W, seen):
     """Typical distance of a frame's visible points from their centroid (median over frames)."""
     n = np.maximum(seen.sum(1), 1)
@@ -458,6 +569,18 @@ def _stages(W, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis,
         converged, n_iter = res.converged, res.n_iter
         message = (f"refinement {'converged' if res.converged else 'stopped at the iteration limit'} after "
                    f"{res.n_iter} iterations, started from the {res.start}")
+        # Keep the refinement only if the tracks say it is better: the track score (normalised
+        # reprojection + bone-length variation) of each stage, never the truth.
+        sk, sr = track_score(W, c, chain, kcs.poses, kcs.cameras, kcs.translations), track_score(W, c, chain, poses, P, t)
+        history["selection"] = {"kcs": list(sk), "refine": list(sr)}
+        if sk[0] < sr[0]:
+            poses, P, t = kcs.poses, kcs.cameras, kcs.translations
+            message += (f"; kept the KCS stage: its track score {sk[0]:.4g} is below the refinement's {sr[0]:.4g} "
+                        "(normalised reprojection + bone-length variation)")
+            history["selection"]["chosen"] = ["kcs"]
+        else:
+            message += f"; track score {sr[0]:.4g} (KCS stage {sk[0]:.4g})"
+            history["selection"]["chosen"] = ["refine"]
     if not converged:
         warnings.warn(f"chainspace.reconstruct: {message}", ConvergenceWarning, stacklevel=4)
     return _result(W, c, given, chain, method, poses, P, t, converged, n_iter, message, history, timings)
@@ -467,6 +590,19 @@ def _result(W, c, given, chain, method, poses, P, t, converged, n_iter, message,
     lengths = np.nanmean(chain.bone_lengths(poses), axis=0)
     return Reconstruction(poses, P, t, lengths, W, c if given else None, chain, method, bool(converged),
                           int(n_iter), message, history, timings)
+
+
+def track_score(W, c, chain, poses, P, t) -> tuple[float, float, float]:
+    """What the tracks say about a reconstruction, lower is better: ``(score, rms, variation)``
+    with ``rms`` the weighted reprojection RMS under the stage's own weak-perspective cameras
+    divided by the subject's size in the image (:func:`_spread`: the median distance of the
+    points from their centroid) and ``variation`` the bone-length variation across frames (summed
+    standard deviations over summed mean lengths of the bones). ``score = rms + variation``."""
+    seen = c > 0
+    rms = reprojection_rms(W, c, poses, P, t) / _spread(W, seen)
+    lengths = chain.bone_lengths(poses)[:, :chain.n_bones]
+    var = float(np.nanstd(lengths, axis=0).sum() / max(np.nanmean(lengths, axis=0).sum(), 1e-300))
+    return float(rms + var), float(rms), var
 
 
 def _prior_parents(chain: KinematicChain) -> np.ndarray:

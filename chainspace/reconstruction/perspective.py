@@ -1,0 +1,155 @@
+"""Calibrated cameras: pixel tracks -> the camera's rays, and the perspective correction of the
+weak-perspective pipeline.
+
+With intrinsics (``K`` and optional OpenCV distortion ``(k1, k2, p1, p2[, k3])``) the tracks are
+undistorted and normalised to rays ``(x/z, y/z)``. A weak-perspective camera on rays has the scale
+``s_k = 1 / Z_k`` (the inverse depth of the subject's centroid in frame k, per pose unit); under
+perspective a joint at depth ``Z_kj = Z_k + d_kj`` (``d_kj`` its depth relative to the centroid
+in camera axes) is seen at ``ray_kj = C_kj[:2] / Z_kj``, while the scaled orthographic view of the
+same point is ``C_kj[:2] / Z_k = ray_kj (1 + s_k d_kj)``. The correction (in the manner of POSIT,
+DeMenthon and Davis 1995) alternates: reconstruct with the weak-perspective pipeline from the
+corrected rays, then correct the rays with the depths of that reconstruction. At a fixed point with
+the right depths the corrected rays are exactly a scaled orthographic view of the motion, so the
+weak-perspective stages see what they see in an orthographic view of the same motion.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..errors import TrackError
+
+__all__ = ["check_intrinsics", "undistort_points", "pixels_to_rays", "rays_to_pixels", "camera_points"]
+
+
+def check_intrinsics(intrinsics: Any) -> tuple[np.ndarray, np.ndarray | None]:
+    """``(K (3, 3), dist (5,) or None)`` from a (3, 3) matrix, a dict ``{"K": ..., "dist": ...}`` or
+    an object with a ``K`` attribute (and ``dist`` / ``distortion``). Raises :class:`TrackError` (a
+    :class:`~chainspace.errors.ChainspaceError`) saying what is wrong."""
+    dist = None
+    if isinstance(intrinsics, dict):
+        unknown = set(intrinsics) - {"K", "dist", "distortion"}
+        if unknown:
+            raise TrackError(f"intrinsics: unknown keys {sorted(unknown)}; give 'K' and optionally 'dist'")
+        if "K" not in intrinsics:
+            raise TrackError("intrinsics: a dict needs 'K', the (3, 3) camera matrix")
+        K = intrinsics["K"]
+        dist = intrinsics.get("dist", intrinsics.get("distortion"))
+    elif hasattr(intrinsics, "K"):
+        K = intrinsics.K
+        dist = getattr(intrinsics, "dist", getattr(intrinsics, "distortion", None))
+    else:
+        K = intrinsics
+    try:
+        K = np.array(K, dtype=float)
+    except (TypeError, ValueError):
+        raise TrackError(f"intrinsics: K is not a numeric (3, 3) matrix: {K!r}") from None
+    if K.shape != (3, 3):
+        raise TrackError(f"intrinsics: K has shape {K.shape}, expected (3, 3) [[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
+    if not np.isfinite(K).all():
+        raise TrackError("intrinsics: K contains NaN or inf")
+    if not np.allclose(K[2], [0.0, 0.0, 1.0]) or K[1, 0] != 0 or (K[2] != [0.0, 0.0, 1.0]).any():
+        raise TrackError(f"intrinsics: the last row of K must be [0, 0, 1] and K[1, 0] zero, got {K.tolist()}")
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise TrackError(f"intrinsics: the focal lengths fx = {K[0, 0]:g}, fy = {K[1, 1]:g} must be > 0 (pixels)")
+    if abs(K[0, 1]) > 0.5 * K[0, 0]:
+        raise TrackError(f"intrinsics: skew K[0, 1] = {K[0, 1]:g} is not plausible for fx = {K[0, 0]:g}")
+    if dist is not None:
+        try:
+            d = np.array(dist, dtype=float).ravel()
+        except (TypeError, ValueError):
+            raise TrackError(f"intrinsics: dist is not numeric: {dist!r}") from None
+        if len(d) not in (4, 5) and not (len(d) > 5 and np.all(d[5:] == 0)):
+            raise TrackError(f"intrinsics: dist has {len(d)} coefficients; expected OpenCV (k1, k2, p1, p2[, k3])")
+        if not np.isfinite(d).all():
+            raise TrackError("intrinsics: dist contains NaN or inf")
+        dist = np.zeros(5)
+        dist[:min(len(d), 5)] = d[:5]
+        if not dist.any():
+            dist = None
+    return K, dist
+
+
+def _distort(xy: np.ndarray, d: np.ndarray) -> np.ndarray:
+    from ..synthetic.views import distort
+
+    return distort(xy, d)
+
+
+def undistort_points(xy_d: np.ndarray, dist: np.ndarray | None, *, n_iter: int = 50) -> np.ndarray:
+    """Normalised distorted coordinates (..., 2) -> undistorted, by fixed-point iteration; NaN
+    where the iteration does not reach 1e-10 (outside the range where the distortion is one-to-one)."""
+    if dist is None:
+        return xy_d.copy()
+    k1, k2, p1, p2, k3 = dist
+    xy = xy_d.copy()
+    for _ in range(n_iter):
+        x, y = xy[..., 0], xy[..., 1]
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        xy = np.stack([(xy_d[..., 0] - dx) / radial, (xy_d[..., 1] - dy) / radial], -1)
+    err = np.linalg.norm(_distort(xy, dist) - xy_d, axis=-1)
+    return np.where((err < 1e-10 * (1 + np.linalg.norm(xy_d, axis=-1)))[..., None], xy, np.nan)
+
+
+def pixels_to_rays(px: np.ndarray, K: np.ndarray, dist: np.ndarray | None) -> np.ndarray:
+    """Pixel tracks (..., 2) -> undistorted normalised coordinates (x/z, y/z) (NaN stays NaN)."""
+    y = (px[..., 1] - K[1, 2]) / K[1, 1]
+    x = (px[..., 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    return undistort_points(np.stack([x, y], -1), dist)
+
+
+def rays_to_pixels(points_cam: np.ndarray, K: np.ndarray, dist: np.ndarray | None) -> np.ndarray:
+    from ..synthetic.views import project_pinhole
+
+    return project_pinhole(points_cam, K, dist)
+
+
+def centring_rotations(rays: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(F, 3, 3) rotations Q_k of virtual cameras that turn the camera about its centre so that the
+    subject's mean ray in frame k lies on the optical axis (``Q_k v_k = e_z``, the smallest such
+    rotation). Seen through them the subject is centred, where weak perspective is most accurate
+    (the error of the scaled orthographic model grows with the distance from the image centre)."""
+    seen = np.isfinite(rays).all(-1)
+    w = np.where(seen, weights, 0.0)
+    m = (w[..., None] * np.where(seen[..., None], rays, 0.0)).sum(1) / np.maximum(w.sum(1), 1e-300)[:, None]
+    v = np.concatenate([m, np.ones((len(m), 1))], -1)
+    v /= np.linalg.norm(v, axis=-1, keepdims=True)
+    ez = np.array([0.0, 0.0, 1.0])
+    a = np.cross(v, ez)  # axis * sin
+    c = v @ ez
+    ax = np.zeros((len(v), 3, 3))
+    ax[:, 0, 1], ax[:, 0, 2], ax[:, 1, 2] = -a[:, 2], a[:, 1], -a[:, 0]
+    ax = ax - np.swapaxes(ax, 1, 2)
+    return np.eye(3) + ax + (ax @ ax) / (1.0 + c)[:, None, None]
+
+
+def turn_rays(rays: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """Rays (F, J, 2) (x/z, y/z) seen by cameras turned by Q (F, 3, 3)."""
+    h = np.concatenate([rays, np.ones(rays.shape[:-1] + (1,))], -1) @ np.swapaxes(Q, 1, 2)
+    return h[..., :2] / h[..., 2:]
+
+
+def camera_points(poses: np.ndarray, cameras: np.ndarray, translations: np.ndarray,
+                  weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The weak-perspective reconstruction on rays placed in camera axes.
+
+    Returns ``(points (F, J, 3), depth offsets d (F, J), centroid depths Z (F,))``: with
+    ``P_k = s_k R_k[:2]``, ``r3 = r1 x r2``, ``d_kj = r3 . X_kj`` minus its weighted mean over the
+    frame's joints, ``Z_k = 1 / s_k``, the points are ``(R_k X_kj)[:2] + Z_k t_k`` and depth
+    ``Z_k + d_kj`` (the weak-perspective model's image is their orthographic view scaled by s_k)."""
+    s = np.sqrt((cameras**2).sum(-1)).mean(-1)  # (F,)
+    r1 = cameras[:, 0] / np.linalg.norm(cameras[:, 0], axis=-1, keepdims=True)
+    r2 = cameras[:, 1] / np.linalg.norm(cameras[:, 1], axis=-1, keepdims=True)
+    r3 = np.cross(r1, r2)
+    d = np.einsum("fjc,fc->fj", poses, r3)
+    w = np.where(np.isfinite(d), weights, 0.0)
+    m = (w * np.nan_to_num(d)).sum(1) / np.maximum(w.sum(1), 1e-300)
+    d = d - m[:, None]
+    Z = 1.0 / np.maximum(s, 1e-300)
+    xy = np.einsum("fjc,fic->fji", poses, np.stack([r1, r2], 1)) + Z[:, None, None] * translations[:, None, :]
+    return np.concatenate([xy, (Z[:, None] + d)[..., None]], -1), d, Z
