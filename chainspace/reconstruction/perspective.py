@@ -153,3 +153,91 @@ def camera_points(poses: np.ndarray, cameras: np.ndarray, translations: np.ndarr
     Z = 1.0 / np.maximum(s, 1e-300)
     xy = np.einsum("fjc,fic->fji", poses, np.stack([r1, r2], 1)) + Z[:, None, None] * translations[:, None, :]
     return np.concatenate([xy, (Z[:, None] + d)[..., None]], -1), d, Z
+
+
+def perspective_refine(rays: np.ndarray, weights: np.ndarray, D: np.ndarray, bones: np.ndarray, root: np.ndarray,
+                       *, lam_len: float = 10.0, lam_prior: float = 1e-3, n_outer: int = 2, n_iter: int = 10
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, list[float]]]:
+    """Fit the full perspective model to rays, frame by frame with shared bone lengths.
+
+    Unknowns per frame k: the root position ``T_k`` (3,) in camera axes and the bones ``x_kb``
+    (n_bones, 3); joints ``C_kj = T_k + sum_b D[b, j] x_kb``. Per frame it minimises (residuals in
+    pose units at the subject's distance: ray errors times the depth ``Z_k``)
+
+        sum_j w_kj Z_k^2 |C_kj[:2] / C_kj[2] - ray_kj|^2 + lam_len sum_b (|x_kb| - l_b)^2
+        + lam_prior sum_b |x_kb - x0_kb|^2
+
+    by Levenberg-Marquardt vectorised over frames (a frame's step is taken only if its cost
+    drops), ``n_iter`` steps; then the lengths ``l_b = mean_k |x_kb|`` (their exact minimiser),
+    ``n_outer`` times. ``x0`` is the start (the weak-perspective result in camera axes): the weak
+    prior keeps the depth-sign choices of the start where the images cannot tell. Returns
+    ``(bones, root, lengths, history)``.
+    """
+    F, J = rays.shape[:2]
+    nb = bones.shape[1]
+    seen = np.isfinite(rays).all(-1)
+    w = np.where(seen, weights, 0.0)
+    v = np.where(seen[..., None], rays, 0.0)
+    x0 = bones.copy()
+    x, T = bones.copy(), root.copy()
+    l = np.linalg.norm(x, axis=-1).mean(0)
+    Dt = np.asarray(D, float)[:nb]  # (nb, J)
+    n = 3 + 3 * nb
+    hist: dict[str, list[float]] = {"cost": []}
+
+    def residuals(x, T, l):
+        C = T[:, None] + np.einsum("fbc,bj->fjc", x, Dt)
+        z = C[..., 2]
+        Z = np.abs(C[..., 2]).mean(1)  # ~ the subject's depth
+        zs = np.where(np.abs(z) > 1e-9, z, 1e-9)
+        p = C[..., :2] / zs[..., None]
+        sw = np.sqrt(w)[..., None] * Z[:, None, None]
+        r_data = (sw * (p - v)).reshape(F, -1)
+        nx = np.linalg.norm(x, axis=-1)
+        r_len = np.sqrt(lam_len) * (nx - l)
+        r_pri = np.sqrt(lam_prior) * (x - x0).reshape(F, -1)
+        return np.concatenate([r_data, r_len, r_pri], 1), C, zs, sw, nx
+
+    def cost(r):
+        return (r * r).sum(1)
+
+    for _ in range(n_outer):
+        r, C, zs, sw, nx = residuals(x, T, l)
+        c0 = cost(r)
+        mu = np.full(F, 1e-3)
+        for _ in range(n_iter):
+            # Jacobian (F, m, n): data rows d p / d C (2 x 3) times d C / d (T, x)
+            dp = np.zeros((F, J, 2, 3))
+            dp[..., 0, 0] = 1.0 / zs
+            dp[..., 1, 1] = 1.0 / zs
+            dp[..., 0, 2] = -C[..., 0] / zs**2
+            dp[..., 1, 2] = -C[..., 1] / zs**2
+            dp = dp * sw[..., None]
+            # d C_j / d x_b = D[b, j] I
+            Jd = np.concatenate([dp, np.einsum("fjrc,bj->fjrbc", dp, Dt).reshape(F, J, 2, 3 * nb)], -1)
+            Jd = Jd.reshape(F, 2 * J, n)
+            u = x / np.maximum(nx, 1e-12)[..., None]
+            Jl = np.zeros((F, nb, n))
+            idx = 3 + 3 * np.arange(nb)
+            for c in range(3):
+                Jl[:, np.arange(nb), idx + c] = np.sqrt(lam_len) * u[..., c]
+            Jp = np.zeros((F, 3 * nb, n))
+            Jp[:, np.arange(3 * nb), 3 + np.arange(3 * nb)] = np.sqrt(lam_prior)
+            Jm = np.concatenate([Jd, Jl, Jp], 1)
+            A = np.swapaxes(Jm, 1, 2) @ Jm
+            g = np.einsum("fmn,fm->fn", Jm, r)
+            diag = np.einsum("fii->fi", A)
+            step = -np.linalg.solve(A + (mu[:, None] * np.maximum(diag, 1e-12))[..., None] * np.eye(n), g[..., None])[..., 0]
+            T_new = T + step[:, :3]
+            x_new = x + step[:, 3:].reshape(F, nb, 3)
+            r_new, C_new, zs_new, sw_new, nx_new = residuals(x_new, T_new, l)
+            c1 = cost(r_new)
+            ok = (c1 < c0) & np.isfinite(c1) & (C_new[..., 2] > 0).all(1)
+            T = np.where(ok[:, None], T_new, T)
+            x = np.where(ok[:, None, None], x_new, x)
+            mu = np.where(ok, mu * 0.3, mu * 10.0)
+            r, C, zs, sw, nx = residuals(x, T, l)
+            c0 = cost(r)
+        hist["cost"].append(float(c0.sum()))
+        l = np.linalg.norm(x, axis=-1).mean(0)
+    return x, T, l, hist

@@ -334,7 +334,7 @@ def reconstruct(
     n_basis: int | None = None,
     refine_options: dict | None = None,
     intrinsics: Any = None,
-    perspective_iter: int = 4,
+    perspective_iter: int = 2,
 ) -> Reconstruction:
     """3D poses and weak-perspective cameras of ``chain`` from 2D ``tracks`` of one camera.
 
@@ -458,7 +458,8 @@ def _run_perspective(W_px, c, given, X0, T, chain, method, max_iter, tol, progre
                      K, dist, n_pass):
     """:func:`_run` on the camera's rays, corrected for perspective pass after pass (see
     :mod:`chainspace.reconstruction.perspective`)."""
-    from .perspective import camera_points, centring_rotations, pixels_to_rays, rays_to_pixels, turn_rays
+    from .perspective import (camera_points, centring_rotations, perspective_refine, pixels_to_rays, rays_to_pixels,
+                              turn_rays)
 
     rays = pixels_to_rays(W_px, K, dist)
     bad = np.isfinite(W_px).all(-1) & ~np.isfinite(rays).all(-1)
@@ -499,11 +500,29 @@ def _run_perspective(W_px, c, given, X0, T, chain, method, max_iter, tol, progre
         if change < 1e-3 or i == n_pass - 1:
             break
         Wc = corrected
+    # the full perspective model, from the corrected weak-perspective result (virtual camera axes)
+    t1 = time.perf_counter()
+    pts_v = pts @ np.swapaxes(Q, 1, 2)
+    nb = chain.n_bones
+    r_idx = chain.joint_index(chain.root)
+    xb, Tr, lengths, ph = perspective_refine(rays, c, chain.D, chain.bone_vectors(pts_v)[:, :nb], pts_v[:, r_idx])
+    timings["perspective"] = time.perf_counter() - t1
+    persp["cost"] = ph["cost"]
+    xb = xb @ Q  # bones in the real camera's axes
+    Tr = np.einsum("fij,fi->fj", Q, Tr)
+    poses = chain.poses_from_bones(xb)
+    pts = poses + Tr[:, None]
+    persp["reprojection"].append(_rms(W_px, c, rays_to_pixels(pts, K, dist)))
+    if T is not None:
+        persp["error_3d"] = [error_3d(poses, T)]
+    rec.poses = poses
+    rec.bone_lengths = np.nanmean(chain.bone_lengths(poses), axis=0)
     rec.tracks = W_px
-    # cameras in the real camera's axes: R_k = Q_k^T R_virtual; translations the real centroid rays
-    rec.cameras = _real_cameras(rec.cameras, Q)
-    cen = (c[..., None] * np.nan_to_num(pts)).sum(1) / np.maximum(c.sum(1), 1e-300)[:, None]
-    rec.translations = cen[:, :2] / cen[:, 2:]
+    # poses are in camera axes: cameras I[:2] / Z_k (Z_k the mean depth of the joints), translations
+    # the root's ray
+    Zk = pts[..., 2].mean(1)
+    rec.cameras = np.broadcast_to(np.eye(3)[:2], (len(pts), 2, 3)) / Zk[:, None, None]
+    rec.translations = Tr[:, :2] / Zk[:, None]
     rec.intrinsics = {"K": K, "dist": dist}
     rec.points_camera = pts
     rec.history["perspective"] = persp
