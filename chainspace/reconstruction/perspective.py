@@ -156,7 +156,7 @@ def camera_points(poses: np.ndarray, cameras: np.ndarray, translations: np.ndarr
 
 
 def perspective_refine(rays: np.ndarray, weights: np.ndarray, D: np.ndarray, bones: np.ndarray, root: np.ndarray,
-                       *, lam_len: float = 10.0, lam_prior: float = 1e-3, n_outer: int = 2, n_iter: int = 10
+                       *, lam_len: float = 10.0, lam_prior: float = 0.3, n_outer: int = 2, n_iter: int = 10
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, list[float]]]:
     """Fit the full perspective model to rays, frame by frame with shared bone lengths.
 
