@@ -1,8 +1,14 @@
-"""Calibrated cameras: pixel tracks -> the camera's rays, and the perspective correction of the
-weak-perspective pipeline.
+"""Calibrated cameras: pixel tracks -> the camera's rays, and the perspective stages of
+:func:`chainspace.reconstruction.pipeline.reconstruct` with ``intrinsics``.
 
-With intrinsics (``K`` and optional OpenCV distortion ``(k1, k2, p1, p2[, k3])``) the tracks are
-undistorted and normalised to rays ``(x/z, y/z)``. A weak-perspective camera on rays has the scale
+Steps: (1) undistort and normalise the tracks to rays; (2) turn the camera about its centre in
+every frame so that the subject's mean ray is the optical axis (:func:`centring_rotations`; weak
+perspective is most accurate for a centred subject); (3) the weak-perspective stages on those rays;
+optionally (``perspective_iter`` > 1) more passes on rays corrected as below; (4)
+:func:`perspective_refine`: the full pinhole model, per frame the root position and the bones in
+camera axes, bone lengths shared by all frames, from the weak-perspective result.
+
+The correction passes (off by default, see ``reconstruct``). A weak-perspective camera on rays has the scale
 ``s_k = 1 / Z_k`` (the inverse depth of the subject's centroid in frame k, per pose unit); under
 perspective a joint at depth ``Z_kj = Z_k + d_kj`` (``d_kj`` its depth relative to the centroid
 in camera axes) is seen at ``ray_kj = C_kj[:2] / Z_kj``, while the scaled orthographic view of the
@@ -10,7 +16,13 @@ same point is ``C_kj[:2] / Z_k = ray_kj (1 + s_k d_kj)``. The correction (in the
 DeMenthon and Davis 1995) alternates: reconstruct with the weak-perspective pipeline from the
 corrected rays, then correct the rays with the depths of that reconstruction. At a fixed point with
 the right depths the corrected rays are exactly a scaled orthographic view of the motion, so the
-weak-perspective stages see what they see in an orthographic view of the same motion.
+weak-perspective stages see what they see in an orthographic view of the same motion. In practice
+the depths come from a reconstruction with errors of 20-50 mm and the passes did not settle
+(on CMU 35_01/35_02 they helped straight walks by 2-4 mm and made turning walks with 2 px noise
+30 mm worse). Known limit: the weak-perspective stages also suffer from the scale 1 / Z_k changing
+over a sequence (a subject walking a circle 3.5-4.7 m away: exactly corrected rays at the
+per-frame scales 50.8 mm, rescaled to one scale 22.2 mm); rescaling with estimated depths did not
+reach that (52 mm).
 """
 
 from __future__ import annotations

@@ -63,10 +63,11 @@ class Reconstruction:
         (Huber threshold, px) and "lam_smooth" (one value each).
     timings : {stage: seconds}.
     intrinsics : with a calibrated camera, ``{"K": (3, 3), "dist": (5,) or None}``; else None.
-        Then ``cameras`` and ``translations`` are the weak-perspective cameras of the last pass in
-        *normalised image coordinates* (undistorted rays x/z, y/z): ``cameras[k] = R_k[:2] / Z_k``
-        with ``R_k`` the camera's rotation relative to the pose axes of frame k and ``Z_k`` the
-        depth of the subject's centroid (pose units), ``translations[k]`` the ray of that centroid.
+        Then ``poses`` are root-relative in the camera's axes (x right, y down, z along the view),
+        ``cameras[k] = I[:2] / Z_k`` with ``Z_k`` the mean depth of the joints in frame k (pose
+        units) and ``translations[k]`` the root's ray (x/z, y/z): ``tracks`` are reproduced by the
+        perspective projection of ``points_camera``, ``poses @ cameras^T + translations`` is only
+        its weak-perspective approximation in normalised image coordinates.
     points_camera : with intrinsics, (F, J, 3) the joints in camera axes (x right, y down, z along
         the view, pose units: the global scale is the initial pose's, as everywhere); the root
         depth of frame k is ``points_camera[k, root, 2]``. None without intrinsics.
