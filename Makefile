@@ -1,12 +1,13 @@
 # Two commands do all the set-up on a fresh machine:
 #   make demo   - the main job on bundled data (the milling arm), results in demo-output/
 #   make test   - installs what the tests need, then runs them
+#   make docs   - builds the documentation site into docs/_build/html (warnings are errors)
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: demo test install browser bench clean
+.PHONY: demo test install browser bench docs clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -34,5 +35,9 @@ test: install browser
 bench: install
 	$(BIN)/chainspace bench
 
+docs: install
+	$(BIN)/python -m sphinx -W --keep-going -q -b html docs docs/_build/html
+	@echo "docs: open docs/_build/html/index.html"
+
 clean:
-	rm -rf $(VENV) build *.egg-info demo-output bench-output
+	rm -rf $(VENV) build dist *.egg-info demo-output bench-output docs/_build

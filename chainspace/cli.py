@@ -2,12 +2,14 @@
 
 Exit codes, for scripts: 0 success; 1 the work ran but its result is not good (a reconstruction or fit
 that did not converge, a validation that failed); 2 bad usage or bad input (the message says what and
-where, on one line of stderr, without a traceback). Every command that writes refuses to replace an
+where, on one line of stderr, without a traceback); 3 an unexpected internal error (a bug: one line naming the
+exception; please report it). Every command that writes refuses to replace an
 existing file unless given ``--overwrite``, and writes each file atomically.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import sys
 import time
@@ -36,6 +38,7 @@ app = typer.Typer(
 )
 
 EXIT_OK, EXIT_NOT_GOOD, EXIT_BAD_INPUT = 0, 1, 2
+EXIT_INTERNAL = 3  # an unexpected exception: a bug, never "not converged"
 
 
 def _console() -> Any:
@@ -59,15 +62,103 @@ def _guarded(func: Callable[..., Any]) -> Callable[..., Any]:
                 warnings.showwarning = _show_warning
                 return func(*args, **kwargs)
         except ChainspaceError as exc:
-            raise _fail(str(exc), EXIT_BAD_INPUT) from None
+            raise _fail(_for_the_shell(str(exc)), EXIT_BAD_INPUT) from None
         except (FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError) as exc:
             raise _fail(f"{exc.filename or ''}: {exc.strerror or exc}", EXIT_BAD_INPUT) from None
+        except Exception as exc:  # a bug: say so on one line, with a code of its own (never 1)
+            if isinstance(exc, (typer.Exit, typer.Abort)) or type(exc).__module__.split(".")[0] in (
+                    "click", "typer"):
+                raise  # the command's own exits and usage errors
+            text = " ".join(str(exc).split()) or "(no message)"
+            raise _fail(f"internal error: {type(exc).__name__}: {text} (this is a bug in chainspace; "
+                        "please report it with the command line)", EXIT_INTERNAL) from None
 
     return wrapper
 
 
 def _show_warning(message: Any, category: Any, *args: Any, **kwargs: Any) -> None:
-    _console().print(f"chainspace: warning: {message}", markup=False, soft_wrap=True)
+    _console().print(f"chainspace: warning: {_for_the_shell(str(message))}", markup=False, soft_wrap=True)
+
+
+# Advice that the library gives to Python callers, as a shell user would follow it.
+_SHELL_ADVICE = (
+    ("pass overwrite=True (--overwrite) to replace it", "use --overwrite to replace it"),
+    ("pass overwrite=True to replace it", "use --overwrite to replace it"),
+    ("pass overwrite=True", "use --overwrite"),
+    ("drop it with chain.subset(...) or provide its track",
+     "remove it from the chain description (or give its track)"),
+    ("pass urdf=PATH or a chain made by chainspace.from_urdf", "give --urdf"),
+    ("pass urdf=PATH", "give --urdf"),
+    ("pass format= one of", "give --format, one of"),
+    ("pass init_pose (J, 3)", "give --init-pose (J, 3)"),
+)
+
+
+def _for_the_shell(message: str) -> str:
+    """A library message with its Python advice (``pass overwrite=True``) in the command line's words."""
+    for python, shell in _SHELL_ADVICE:
+        message = message.replace(python, shell)
+    return message
+
+
+def _version_callback(value: bool) -> None:
+    if value:
+        from . import __version__
+
+        typer.echo(f"chainspace {__version__}")
+        raise typer.Exit(EXIT_OK)
+
+
+@app.callback()
+def _main(
+    version: Annotated[bool, typer.Option("--version", callback=_version_callback, is_eager=True,
+                                          help="Print the version and exit.")] = False,
+) -> None:
+    """3D motion of kinematic chains from 2D tracks of one uncalibrated camera."""
+
+
+def _positive(option: str, value: float | None) -> None:
+    """A numeric option must be a finite number > 0 (exit 2 otherwise, one line naming the option)."""
+    from .errors import is_real
+
+    if value is not None and not (is_real(value) and value > 0):
+        raise TrackError(f"{option} must be a finite number > 0, not {value}")
+
+
+def _seed(value: int) -> None:
+    """A random seed is an integer >= 0 (numpy's rule), else exit 2 naming --seed."""
+    if value < 0:
+        raise TrackError(f"--seed must be an integer >= 0, not {value}")
+
+
+def _parse_extra_frames(specs: list[str] | None) -> dict[str, tuple[str, list[float]]] | None:
+    """``NAME=LINK:x,y,z`` (metres, in LINK's frame) -> ``{NAME: (LINK, [x, y, z])}`` for from_urdf."""
+    if not specs:
+        return None
+    from .errors import DescriptionError
+
+    out: dict[str, tuple[str, list[float]]] = {}
+    for spec in specs:
+        name, eq, rest = spec.partition("=")
+        link, colon, xyz = rest.rpartition(":")
+        try:
+            values = [float(v) for v in xyz.split(",")]
+        except ValueError:
+            values = []
+        if not (eq and colon and name.strip() and link.strip() and len(values) == 3
+                and all(np.isfinite(values))):
+            raise DescriptionError(f"--extra-frame {spec!r}: expected NAME=LINK:x,y,z (metres in LINK's "
+                                   "frame), e.g. tool=flange:0,0,0.1")
+        if name.strip() in out:
+            raise DescriptionError(f"--extra-frame {name.strip()!r} is given twice")
+        out[name.strip()] = (link.strip(), values)
+    return out
+
+
+ExtraFrames = Annotated[Optional[list[str]], typer.Option(
+    "--extra-frame", metavar="NAME=LINK:x,y,z",
+    help="A tracked point fixed to a URDF link, offset in that link's frame in metres (a tool tip; "
+         "the way to make the first joint or a planar tool observable). Repeatable.")]
 
 
 def _status(message: str) -> Any:
@@ -167,6 +258,56 @@ class Suite(str, Enum):
 
 
 Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace existing output files.")]
+Intrinsics = Annotated[Optional[Path], typer.Option(
+    help="The camera's calibration: OpenCV .yaml/.yml/.xml (calibrateCamera's output), ROS camera_info "
+         ".yaml or .json with K and dist.")]
+Fov = Annotated[Optional[float], typer.Option(
+    help="Instead of --intrinsics: the horizontal field of view in degrees (needs --image-size).")]
+ImageSize = Annotated[Optional[tuple[float, float]], typer.Option(
+    help="Image width and height in px.")]
+
+
+def _camera_option(intrinsics: Path | None, fov: float | None,
+                   image_size: tuple[float, float] | None) -> Any:
+    """The PinholeCamera that --intrinsics FILE or --fov DEG (with --image-size W H) describe, or None.
+
+    Called before any work, so that a bad value stops the command at once (exit code 2).
+    """
+    if intrinsics is None and fov is None:
+        return None
+    from .cameras.pinhole import PinholeCamera, as_camera
+    from .errors import CameraError, DescriptionNotFoundError, is_real
+
+    if intrinsics is not None and fov is not None:
+        raise CameraError("give --intrinsics or --fov, not both")
+    size = None
+    if image_size is not None:
+        w, h = image_size
+        if not (is_real(w) and is_real(h) and w > 0 and h > 0 and w == int(w) and h == int(h)):
+            raise CameraError(f"--image-size must be two positive whole numbers of pixels, not {w:g} {h:g}")
+        size = (int(w), int(h))
+    if fov is not None:
+        if not is_real(fov) or not 0.0 < fov < 180.0:
+            raise CameraError(f"--fov must be a field of view in degrees between 0 and 180, not {fov:g}")
+        if size is None:
+            raise CameraError("--fov needs the image size: add --image-size WIDTH HEIGHT")
+        return PinholeCamera.from_fov(size[0], size[1], fov)
+    if not intrinsics.is_file():
+        raise DescriptionNotFoundError(f"{intrinsics}: no such calibration file (--intrinsics)")
+    return as_camera(intrinsics, size)
+
+
+def _intrinsics_kwargs(func: Callable[..., Any], camera: Any, what: str) -> dict[str, Any]:
+    """``{"intrinsics": camera}`` for ``func`` when a camera was given, else nothing; a clear error when
+    this version of ``func`` takes no intrinsics (perspective support lands per stage)."""
+    if camera is None:
+        return {}
+    import inspect
+
+    if "intrinsics" not in inspect.signature(func).parameters:
+        raise _fail(f"--intrinsics/--fov: {what} in this version of chainspace does not use camera "
+                    "intrinsics yet", EXIT_BAD_INPUT)
+    return {"intrinsics": camera}
 
 
 # ---------------------------------------------------------------------------------------- commands
@@ -197,12 +338,15 @@ def reconstruct(
     format: Annotated[Optional[str], typer.Option(help="Track format if not guessed: csv, npy, npz, coco, "
                                                        "openpose, mediapipe.")] = None,
     image_size: Annotated[Optional[tuple[float, float]], typer.Option(
-        help="Image width and height in px (MediaPipe landmarks are normalised).")] = None,
+        help="Image width and height in px (MediaPipe landmarks are normalised; --fov needs it).")] = None,
+    intrinsics: Intrinsics = None,
+    fov: Fov = None,
     truth: Annotated[Optional[Path], typer.Option(help="True poses (F, J, 3) m, .npy: adds the 3D error.")] = None,
     bvh: Annotated[Optional[Path], typer.Option(help="Also write the motion as BVH (human chains).")] = None,
     fps: Annotated[float, typer.Option(help="Frame rate of the tracks (BVH and viewer).")] = 30.0,
     html: Annotated[Optional[Path], typer.Option(help="Also write a standalone HTML viewer.")] = None,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    extra_frame: ExtraFrames = None,
     overwrite: Overwrite = False,
 ) -> None:
     """Reconstruct 3D motion from the 2D tracks of a chain seen by one camera.
@@ -215,13 +359,20 @@ def reconstruct(
     from .io.results import save_results
     from .io.tracks import load_tracks
 
+    _positive("--fps", fps)
+    _seed(seed)
+    for v in image_size or ():
+        _positive("--image-size", v)
+    camera = _camera_option(intrinsics, fov, image_size)
+    extras = _parse_extra_frames(extra_frame)
     _check_outputs([out / f"reconstruction.{x}" for x in ("npz", "csv", "json")] + [bvh, html], overwrite)
-    kc = load_chain(chain)
+    intrinsics_kw = _intrinsics_kwargs(run, camera, "reconstruct")
+    kc = load_chain(chain, **_extra_frame_options(chain, extras))
     W, conf, _ = load_tracks(tracks, chain=kc, format=format, image_size=image_size)
     X0 = None if init_pose is None else _load_array(init_pose, "initial pose", ("init_pose", "pose"))
     X_true = _load_poses(truth, kc)
     with _status(f"reconstructing {W.shape[0]} frames of {kc.name} ({method.value})"):
-        rec = run(W, kc, X0, method.value, confidence=conf, truth=X_true, seed=seed)
+        rec = run(W, kc, X0, method.value, confidence=conf, truth=X_true, seed=seed, **intrinsics_kw)
     for p in save_results(rec, out, overwrite=overwrite):
         _say(f"wrote {p}")
     if bvh is not None:
@@ -232,7 +383,7 @@ def reconstruct(
     if html is not None:
         from .view.viewer import write_html
 
-        _say(f"wrote {write_html(html, rec, truth=X_true, fps=fps, overwrite=overwrite)}")
+        _say(f"wrote {write_html(html, rec, truth=X_true, fps=fps, overwrite=overwrite, **_frustum(camera))}")
     typer.echo(repr(rec))
     if not rec.converged:
         raise _fail(f"the reconstruction did not converge: {rec.message}", EXIT_NOT_GOOD)
@@ -247,9 +398,14 @@ def fit(
                                                      "the one the reconstruction's chain came from.")] = None,
     out: Annotated[Path, typer.Option("--out", "-o", help="Folder for joint_angles.npz/.csv/.json.")] = Path("."),
     camera: Annotated[Camera, typer.Option(help="static (tripod) or per-frame camera.")] = Camera.static,
+    intrinsics: Intrinsics = None,
+    fov: Fov = None,
+    image_size: ImageSize = None,
     format: Annotated[Optional[str], typer.Option(help="Track format when SOURCE is tracks.")] = None,
     html: Annotated[Optional[Path], typer.Option(help="Also write a standalone HTML viewer of the fit.")] = None,
-    fps: Annotated[float, typer.Option(help="Frame rate (viewer).")] = 30.0,
+    fps: Annotated[float, typer.Option(help="Frame rate of the motion (the fit's motion prior and the "
+                                            "viewer).")] = 30.0,
+    extra_frame: ExtraFrames = None,
     overwrite: Overwrite = False,
 ) -> None:
     """Fit the robot's joint angles (Pinocchio) to a reconstruction or to 2D tracks.
@@ -261,34 +417,67 @@ def fit(
     from .robot.fit import fit_joint_angles
     from .io.results import load_results, save_results
 
+    _positive("--fps", fps)
+    extras = _parse_extra_frames(extra_frame)
+    pinhole = _camera_option(intrinsics, fov, image_size)  # --camera is the static/per-frame choice
     _check_outputs([out / f"joint_angles.{x}" for x in ("npz", "csv", "json")] + [html], overwrite)
+    fit_kw = _intrinsics_kwargs(fit_joint_angles, pinhole, "fit")
     urdf_path = None if urdf is None else _urdf_path(urdf)
+    fit_chain = None
     if source.suffix.lower() == ".npz" and _is_result(source):
         rec = load_results(source)
         if not hasattr(rec, "poses"):
             raise TrackError(f"{source}: this is a joint fit, not a reconstruction")
+        if extras:
+            from .io.urdf import from_urdf
+
+            base = urdf_path or getattr(getattr(rec, "chain", None), "metadata", {}).get("urdf_path")
+            if base is None:
+                raise TrackError("--extra-frame needs --urdf (the reconstruction names no URDF)")
+            fit_chain = from_urdf(base, extra_frames=extras)
     else:
         if urdf_path is None:
             raise TrackError("fitting 2D tracks needs --urdf")
         from .reconstruction.pipeline import reconstruct as run
         from .io.tracks import load_tracks
 
-        kc = load_chain(urdf_path)
+        kc = load_chain(urdf_path, **_extra_frame_options(urdf_path, extras))
         W, conf, _ = load_tracks(source, chain=kc, format=format)
         with _status(f"reconstructing {W.shape[0]} frames of {kc.name}"):
-            rec = run(W, kc, confidence=conf)
+            rec = run(W, kc, confidence=conf, **_intrinsics_kwargs(run, pinhole, "reconstruct"))
     with _status(f"fitting joint angles to {rec.poses.shape[0]} frames"):
-        result = fit_joint_angles(rec, urdf_path, camera=camera.value)
+        result = fit_joint_angles(rec, urdf_path, camera=camera.value, fps=fps, **fit_kw,
+                                  **({} if fit_chain is None else {"chain": fit_chain}))
     for p in save_results(result, out, overwrite=overwrite):
         _say(f"wrote {p}")
     if html is not None:
         from .view.viewer import write_html
 
-        _say(f"wrote {write_html(html, rec, fit=result, fps=fps, overwrite=overwrite)}")
+        _say(f"wrote {write_html(html, rec, fit=result, fps=fps, overwrite=overwrite, **_frustum(pinhole))}")
     typer.echo(repr(result))
     if not np.all(result.converged):
         raise _fail(f"{int(np.sum(~np.asarray(result.converged)))} frames did not converge: {result.message}",
                     EXIT_NOT_GOOD)
+
+
+def _frustum(camera: Any) -> dict[str, Any]:
+    """``{"camera": camera}`` for the viewer when the camera's image size is known (the frustum needs it)."""
+    return {} if camera is None or camera.image_size is None else {"camera": camera}
+
+
+def _extra_frame_options(chain: str | Path, extras: dict | None) -> dict[str, Any]:
+    """``{"extra_frames": extras}`` for a URDF chain; extra frames on another chain are bad usage."""
+    if not extras:
+        return {}
+    from .io.descriptions import shipped_path
+
+    p = Path(chain)
+    if not p.is_file() and "/" not in str(chain):
+        with contextlib.suppress(ChainspaceError):
+            p = shipped_path(str(chain))
+    if p.suffix.lower() != ".urdf":
+        raise TrackError(f"--extra-frame needs a URDF chain; {chain} is not a .urdf")
+    return {"extra_frames": extras}
 
 
 def _urdf_path(urdf: str) -> str:
@@ -349,17 +538,27 @@ def view(
     reconstruction: Annotated[Optional[Path], typer.Option(help="With a joint fit: the reconstruction to "
                                                                 "draw over the robot.")] = None,
     fps: Annotated[float, typer.Option(help="Playback frame rate.")] = 30.0,
+    intrinsics: Intrinsics = None,
+    fov: Fov = None,
+    image_size: ImageSize = None,
     open_browser: Annotated[bool, typer.Option("--open", help="Open the live viewer in a browser.")] = False,
     overwrite: Overwrite = False,
 ) -> None:
     """Animate a result in meshcat: the skeleton (and the truth beside it), or the fitted robot.
 
     With --html, writes one HTML file that a browser opens from disk with no server or network;
-    otherwise starts a live viewer, prints its URL and runs until Ctrl-C.
+    otherwise starts a live viewer, prints its URL and runs until Ctrl-C. With --intrinsics (or --fov
+    and --image-size) the camera's frustum is drawn where the result's fitted camera puts it.
     """
     from .io.results import load_results
     from .view.viewer import show, write_html
 
+    _positive("--fps", fps)
+    camera = _camera_option(intrinsics, fov, image_size)
+    if camera is not None and camera.image_size is None:
+        raise _fail(f"{intrinsics}: the calibration has no image size; add --image-size WIDTH HEIGHT to "
+                    "draw the camera", EXIT_BAD_INPUT)
+    kwargs_camera = {} if camera is None else {"camera": camera}
     if html is not None:
         _check_outputs([html], overwrite)
     loaded = load_results(result)
@@ -369,9 +568,9 @@ def view(
     else:
         rec, kwargs = loaded, {"truth": _load_poses(truth, loaded.chain)}
     if html is not None:
-        _say(f"wrote {write_html(html, rec, fps=fps, overwrite=overwrite, **kwargs)}")
+        _say(f"wrote {write_html(html, rec, fps=fps, overwrite=overwrite, **kwargs, **kwargs_camera)}")
         return
-    show(rec, fps=fps, open_browser=open_browser, **kwargs)
+    show(rec, fps=fps, open_browser=open_browser, **kwargs, **kwargs_camera)
     _say("live viewer running; press Ctrl-C to stop")
     try:
         while True:
@@ -425,6 +624,10 @@ def bench(
             status.update(message)
 
         rows = run(quick=quick, progress=progress)
+    if not rows:
+        raise _fail(f"the {suite.value} benchmark found none of its data (CMU/DeepMimic sequences in "
+                    "$CHAINSPACE_DATA, else ../shared/data beside the repository; example-robot-data for "
+                    "robots): nothing was measured", EXIT_BAD_INPUT)
     table = fmt(rows)
     typer.echo(table)
     if stem is not None:
@@ -452,14 +655,17 @@ def demo(
     standalone HTML viewer (viewer.html). Exit code 1 if validation failed."""
     from .demo import run_demo
 
+    _seed(seed)
     console = _console()
     with console.status("running the demo") as status:
         def progress(message: str) -> None:
             if not message.lstrip().startswith("|"):  # the report table goes to stdout at the end
-                console.print(message.strip(), markup=False, highlight=False)
+                console.print(message.strip(), markup=False, highlight=False, soft_wrap=True)
                 status.update(message.strip())
 
         summary = run_demo(out, overwrite=overwrite, progress=progress, seed=seed)
+        progress("writing the viewer (viewer.html) and the plots (joint_angles.png, convergence.png, "
+                 "joint_errors.png)")
         status.update("writing the viewer and the plots")
         for p in _demo_extras(out, summary, overwrite):
             _say(f"wrote {p}")

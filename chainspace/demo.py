@@ -42,6 +42,49 @@ def _say(progress: bool | Callable[[str], None], msg: str) -> None:
         print(msg, flush=True)
 
 
+class _Ticker:
+    """While a long stage runs, a plain progress line every ``every`` seconds (``what``: elapsed time, and
+    the time left when ``expected_s`` gives an estimate), then one line with the time it took. Plain
+    lines, so they show when the output is piped too."""
+
+    def __init__(self, progress: bool | Callable[[str], None], what: str, *, every: float = 10.0,
+                 expected_s: float | None = None) -> None:
+        self.progress, self.what, self.every, self.expected_s = progress, what, every, expected_s
+        self.t0 = time.perf_counter()
+        self._stop = None
+        self._thread = None
+
+    def line(self) -> str:
+        elapsed = time.perf_counter() - self.t0
+        text = f"      ... {self.what}: {elapsed:.0f} s elapsed"
+        if self.expected_s:
+            left = self.expected_s - elapsed
+            text += f", about {left:.0f} s left" if left > 0 else ", taking longer than estimated"
+        return text
+
+    def __enter__(self) -> _Ticker:
+        import threading
+
+        self.t0 = time.perf_counter()
+        self._stop = threading.Event()
+
+        def run() -> None:
+            while not self._stop.wait(self.every):
+                _say(self.progress, self.line())
+
+        if self.progress:
+            self._thread = threading.Thread(target=run, daemon=True)
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        if exc[0] is None:
+            _say(self.progress, f"      ... {self.what}: done in {time.perf_counter() - self.t0:.1f} s")
+
+
 def _write_angles_csv(path: Path, q: np.ndarray, names: list[str], fps: float, overwrite: bool) -> None:
     from .io.results import atomic_write
 
@@ -95,17 +138,21 @@ def run_demo(out_dir: str | Path, *, overwrite: bool = False, progress: bool | C
     save_tracks(tracks_path, trial.tracks, list(chain.joints), confidence=trial.confidence, overwrite=overwrite)
     tracks, confidence, _ = load_tracks(tracks_path, chain=chain)
 
-    _say(progress, "[3/5] reconstructing the 3D motion from the tracks alone")
+    F, J = tracks.shape[:2]
+    _say(progress, f"[3/5] reconstructing the 3D motion from the tracks alone ({F} frames, {J} points)")
     t = time.perf_counter()
-    rec = reconstruct(tracks, chain, confidence=confidence, seed=seed)
+    with _Ticker(progress, f"reconstructing {F} frames"):
+        rec = reconstruct(tracks, chain, confidence=confidence, seed=seed)
     timings["reconstruct"] = time.perf_counter() - t
 
-    _say(progress, "[4/5] fitting the URDF's joint angles (static camera, refined on the tracks)")
+    _say(progress, f"[4/5] fitting the URDF's joint angles to {F} frames (static camera, refined on the "
+                   "tracks; the longest stage)")
     t = time.perf_counter()
-    fit = fit_joint_angles(rec, urdf, chain=chain, tracks=tracks, confidence=confidence, fps=trial.fps)
+    with _Ticker(progress, f"fitting {F} frames", every=15.0):
+        fit = fit_joint_angles(rec, urdf, chain=chain, tracks=tracks, confidence=confidence, fps=trial.fps)
     timings["fit"] = time.perf_counter() - t
 
-    _say(progress, "[5/5] validating against the known trajectory")
+    _say(progress, f"[5/5] validating against the known trajectory ({F} frames)")
     report = validate(fit, trial.q, truth_positions=trial.positions)
     table = report.table()
     _say(progress, "\n" + table + "\n")

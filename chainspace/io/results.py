@@ -224,6 +224,10 @@ def _fit_summary(fit: Any) -> dict[str, Any]:
         return {"mean": float(x.mean()), "max": float(x.max()), "rms": float(np.sqrt((x**2).mean()))}
 
     q = np.asarray(fit.q)
+    scale = getattr(fit, "scale", None)
+    scale = float(scale) if scale is not None and np.isfinite(scale) and float(scale) > 0 else None
+    relative = np.asarray(getattr(fit, "relative", None) if getattr(fit, "relative", None) is not None
+                          else np.zeros(0, bool), dtype=bool).reshape(-1)
     return {
         "kind": "joint_fit",
         "urdf_path": getattr(fit, "urdf_path", None),
@@ -234,10 +238,17 @@ def _fit_summary(fit: Any) -> dict[str, Any]:
         "n_iter": getattr(fit, "n_iter", None),
         "message": getattr(fit, "message", ""),
         "scale": getattr(fit, "scale", None),
-        "residual_3d_mm": stats(res3, 1000.0),
+        # residual_3d is in the reconstruction's units (scale-free); divided by the fit's scale it is in
+        # the robot's metres, so the _mm field holds millimetres on the robot
+        "residual_3d_mm": stats(res3, 1000.0 / scale) if scale else None,
+        "residual_3d_reconstruction_units": stats(res3, 1.0),
         "residual_px": stats(respx, 1.0),
+        "relative_to_frame_0": [n for n, r in zip(fit.joint_names, relative, strict=False) if r],
         "timings_s": getattr(fit, "timings", {}) or {},
-        "units": {"q": "rad (revolute) or m (prismatic)", "positions": "m", "residual_3d": "m",
+        "units": {"q": "rad (revolute) or m (prismatic); joints in relative_to_frame_0 are seen only "
+                       "relative to frame 0",
+                  "positions": "the reconstruction's units", "residual_3d_mm": "mm on the robot (URDF scale)",
+                  "residual_3d_reconstruction_units": "the reconstruction's units (scale-free)",
                   "residual_px": "px"},
     }
 

@@ -275,7 +275,28 @@ def _read_csv(path: Path) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
         P[frame, j] = vals[:2]
         if has_conf:
             conf[frame, j] = vals[2]
+    _check_cut_short(seen, names, path)
     return P, conf, names
+
+
+def _check_cut_short(seen: np.ndarray, names: list[str], path: Path) -> None:
+    """A file cut at a line boundary: every frame has a row per joint but the last, which has only the
+    first few joints' rows and ends the file. Its missing points would pass for unseen ones."""
+    F, J = seen.shape
+    rows = seen > 0
+    if F < 2 or J < 2 or not rows[:-1].all():
+        return
+    have = np.flatnonzero(rows[-1])
+    if len(have) == 0 or len(have) == J:
+        return
+    last_line = int(seen.max())
+    if int(seen[-1].max()) != last_line:  # the partial frame is not where the file ends
+        return
+    lost = [names[j] for j in np.flatnonzero(~rows[-1])]
+    raise TrackError(located(
+        f"the last frame ({F - 1}) has rows for only {len(have)} of the {J} joints (no row for "
+        f"{', '.join(lost[:4])}{', ...' if len(lost) > 4 else ''}), while every other frame has all: "
+        f"the file looks cut short; complete or remove frame {F - 1}", path, last_line))
 
 
 def _frame_count(last: int, n_rows: int, path: Path) -> int:
@@ -302,7 +323,7 @@ def _read_npy(path: Path, chain: Any) -> tuple[np.ndarray, np.ndarray | None, li
     return a[..., :2], (a[..., 2] if a.shape[2] == 3 else None), names
 
 
-def _read_npz(path: Path) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
+def _read_npz(path: Path, chain: Any = None) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
@@ -314,6 +335,13 @@ def _read_npz(path: Path) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
         raise TrackError(f"{path}: no 'tracks' array (found {', '.join(data) or 'nothing'})")
     P = data["tracks"]
     J = P.shape[1] if P.ndim > 1 else 0
+    if "names" not in data and chain is not None and P.ndim == 3:
+        # no names: like a .npy, the joints must be the chain's, in its order; their count is checked
+        if J != chain.n_joints:
+            raise TrackError(f"{path}: {J} joints in the 'tracks' array but the chain {chain.name} has "
+                             f"{chain.n_joints}; without a 'names' array the joints must be the chain's, "
+                             "in its order")
+        return P, data.get("confidence"), list(chain.joints)
     names = data["names"].tolist() if "names" in data else [f"joint{j}" for j in range(J)]
     return P, data.get("confidence"), names
 
@@ -472,7 +500,7 @@ def load_tracks(path: str | os.PathLike, chain: Any = None, format: str | None =
         elif fmt == "npy":
             P, C, names = _read_npy(path, chain)
         elif fmt == "npz":
-            P, C, names = _read_npz(path)
+            P, C, names = _read_npz(path, chain)
         elif fmt == "coco":
             P, C, names = _read_coco(path)
         elif fmt == "openpose":

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import difflib
+import functools
 import logging
 import os
 import re
@@ -34,7 +35,7 @@ import numpy as np
 from ..chain import KinematicChain
 from ..errors import DescriptionError, DescriptionNotFoundError, located
 
-__all__ = ["from_urdf", "pinocchio_model", "point_positions"]
+__all__ = ["from_urdf", "pinocchio_model", "point_positions", "resolve_mesh", "visual_urdf"]
 
 # Joints that keep the child's origin at a fixed offset from the parent's origin.
 _RIGID_ORIGIN = {"fixed", "revolute", "continuous"}
@@ -578,3 +579,155 @@ def point_positions(chain: KinematicChain, q: Any, *, model: Any = None) -> np.n
         pin.framesForwardKinematics(model, data, qf)
         out[f] = [data.oMf[i].translation for i in ids]
     return out.reshape(qs.shape[:-1] + (len(ids), 3))
+
+
+
+# ---------------------------------------------------------------------------- meshes
+def _package_name(folder: Path) -> str | None:
+    """The <name> in ``folder/package.xml``, if there is one."""
+    xml = folder / "package.xml"
+    if not xml.is_file():
+        return None
+    m = re.search(r"<name>\s*([^<\s]+)\s*</name>", xml.read_text(encoding="utf-8", errors="replace"))
+    return m.group(1) if m else None
+
+
+def _package_roots(package: str, urdf_path: str | Path | None) -> list[Path]:
+    """:func:`_find_package_roots`, remembered per package, URDF folder and ROS_PACKAGE_PATH (a URDF
+    names the same package for each of its meshes)."""
+    folder = None if urdf_path is None else str(Path(urdf_path).resolve().parent)
+    return list(_find_package_roots(package, folder, os.environ.get("ROS_PACKAGE_PATH", "")))
+
+
+@functools.lru_cache(maxsize=256)
+def _find_package_roots(package: str, urdf_folder: str | None, ros_package_path: str) -> tuple[Path, ...]:
+    """Folders that may be ROS package ``package``, in the order ROS tools would look: the entries of
+    ROS_PACKAGE_PATH (and their sub-folders two levels down), the URDF's own ancestors (a folder named
+    ``package``, one whose package.xml names it, or one holding a folder ``package``), and the share
+    folder of an installed example-robot-data."""
+    found: list[Path] = []
+
+    def consider(folder: Path) -> None:
+        if folder.is_dir() and (folder.name == package or _package_name(folder) == package):
+            found.append(folder)
+
+    for entry in filter(None, ros_package_path.split(os.pathsep)):
+        root = Path(entry)
+        if not root.is_dir():
+            continue
+        consider(root)
+        consider(root / package)
+        with contextlib.suppress(OSError):
+            for sub in root.iterdir():
+                if sub.is_dir():
+                    consider(sub / package)
+                    consider(sub)
+    if urdf_folder is not None:
+        for anc in (Path(urdf_folder), *Path(urdf_folder).parents):
+            consider(anc)
+            consider(anc / package)
+    with contextlib.suppress(Exception):
+        from .descriptions import _example_robot_data_root
+
+        robots = _example_robot_data_root()
+        if robots is not None:  # share/example-robot-data/robots/<pkg>, share/<pkg>
+            for folder in (robots / package, robots.parent.parent / package):
+                consider(folder)
+    return tuple(dict.fromkeys(found))
+
+
+def resolve_mesh(uri: str, urdf_path: str | Path | None = None) -> Path | None:
+    """The file a URDF mesh ``filename`` names, found as ROS tools find it, or None when it is missing.
+
+    ``package://pkg/rel`` is looked up in the folders of ROS_PACKAGE_PATH, among the URDF's ancestors
+    (a folder named ``pkg`` or whose package.xml names ``pkg``, or holding a folder ``pkg``) and in the
+    installed example-robot-data package; ``file://`` URIs and absolute paths are taken as they are;
+    relative paths are relative to the URDF's folder.
+    """
+    uri = str(uri).strip()
+    base = Path(urdf_path).resolve().parent if urdf_path is not None else Path.cwd()
+    if uri.startswith("package://"):
+        rest = uri[len("package://"):]
+        package, _, rel = rest.partition("/")
+        if not package or not rel:
+            return None
+        for root in _package_roots(package, urdf_path):
+            candidate = root / rel
+            if candidate.is_file():
+                return candidate
+        return None
+    if uri.startswith("file://"):
+        from urllib.parse import unquote, urlparse
+
+        candidate = Path(unquote(urlparse(uri).path))
+    elif "://" in uri:
+        return None  # http:// and others: not fetched
+    else:
+        candidate = Path(uri)
+        if not candidate.is_absolute():
+            candidate = base / candidate
+    return candidate if candidate.is_file() else None
+
+
+def _placeholder_geometry(el: Any, link: Any, root: Any) -> None:
+    """Replace the <geometry> of visual ``el`` of ``link`` by a cylinder from the link's origin to its
+    first child joint's origin (a small sphere on a link with no child), at the visual's own colour."""
+    from lxml import etree
+
+    offset = None
+    for joint in root.findall("joint"):
+        parent = joint.find("parent")
+        if parent is not None and parent.get("link") == link.get("name"):
+            origin = joint.find("origin")
+            xyz = [0.0, 0.0, 0.0] if origin is None else [float(v) for v in origin.get("xyz", "0 0 0").split()]
+            if np.linalg.norm(xyz) > 1e-6:
+                offset = np.asarray(xyz, dtype=float)
+                break
+    geometry = el.find("geometry")
+    for child in list(geometry):
+        geometry.remove(child)
+    origin = el.find("origin")
+    if origin is None:
+        origin = etree.SubElement(el, "origin")
+    if offset is None:
+        etree.SubElement(geometry, "sphere", radius="0.02")
+        origin.set("xyz", "0 0 0")
+        origin.set("rpy", "0 0 0")
+        return
+    length = float(np.linalg.norm(offset))
+    u = offset / length
+    # rotate the cylinder's z axis onto u: pitch about y, then yaw about z (URDF rpy is fixed-axis x, y, z)
+    pitch, yaw = float(np.arccos(np.clip(u[2], -1.0, 1.0))), float(np.arctan2(u[1], u[0]))
+    etree.SubElement(geometry, "cylinder", radius=f"{max(0.01, 0.08 * length):.4f}", length=f"{length:.6f}")
+    origin.set("xyz", " ".join(f"{v:.6f}" for v in offset / 2))
+    origin.set("rpy", f"0 {pitch:.6f} {yaw:.6f}")
+
+
+def visual_urdf(urdf_path: str | Path) -> str:
+    """The URDF's XML with every visual mesh's filename resolved (:func:`resolve_mesh`) to an absolute
+    path; a mesh that cannot be found is drawn as a primitive instead (a cylinder along the link, or a
+    sphere), with one warning naming the missing meshes. Collision geometry is dropped (not drawn)."""
+    from lxml import etree
+
+    path = Path(urdf_path)
+    root = etree.parse(str(path), etree.XMLParser(remove_comments=True, resolve_entities=False)).getroot()
+    missing: list[str] = []
+    for link in root.findall("link"):
+        for col in link.findall("collision"):
+            link.remove(col)
+        for vis in link.findall("visual"):
+            mesh = vis.find("geometry/mesh")
+            if mesh is None:
+                continue
+            uri = mesh.get("filename", "")
+            found = resolve_mesh(uri, path)
+            if found is not None:
+                mesh.set("filename", str(found))
+            else:
+                missing.append(uri)
+                _placeholder_geometry(vis, link, root)
+    if missing:
+        shown = ", ".join(dict.fromkeys(missing[:3])) + (f" and {len(missing) - 3} more" if len(missing) > 3 else "")
+        warnings.warn(f"{path.name}: mesh {shown} not found (searched ROS_PACKAGE_PATH, the URDF's folders "
+                      "and example-robot-data); drawn as simple shapes instead", stacklevel=2)
+    return etree.tostring(root, encoding="unicode")

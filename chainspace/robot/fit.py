@@ -24,7 +24,7 @@ sequence, the joint angles ``q`` that put those frames where the points were see
    first or after the last one it would carry the joint on at its last speed for ever (a straight
    ramp costs no acceleration). ``speed_decay_s`` also charges the joint's speed there, so that it
    decays with that time constant and the joint comes to rest. Off by default: over a second unseen
-   neither guess wins on the benchmarks (README, robustness section; ``benchmarks/bench_hidden_ends.py``),
+   neither guess wins on the benchmarks (docs/benchmarks.md, robustness section; ``benchmarks/bench_hidden_ends.py``),
    but over longer stretches at the ends a constant speed runs on to the joint limits.
 
 Ambiguities the tracks cannot settle, and the rules that settle them

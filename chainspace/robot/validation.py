@@ -20,7 +20,7 @@ import numpy as np
 
 from ..errors import DescriptionError, TrackError
 
-__all__ = ["ValidationReport", "validate", "DEFAULT_THRESHOLDS"]
+__all__ = ["ValidationReport", "validate", "DEFAULT_THRESHOLDS", "BONES_NOTE"]
 
 DEFAULT_THRESHOLDS: dict[str, float] = {
     "joint_rms_deg": 1.0,  # per observable joint, RMS over frames
@@ -28,6 +28,16 @@ DEFAULT_THRESHOLDS: dict[str, float] = {
     "reprojection_rms_px": float("inf"),  # not judged unless set
     "bone_error_pct": float("inf"),  # reconstructed vs URDF bone lengths, not judged unless set
 }
+
+
+# Printed above the bone table and stored in the JSON: the two kinds of length are not the same thing.
+BONES_NOTE = (
+    "Bone lengths: the fitted robot's come from its URDF (metres; the fit moves the URDF's joints, so they "
+    "are exact by construction). The reconstruction's come from one camera, which fixes no scale: they "
+    "are shown as shares of the chain's total length, beside the URDF's shares. A difference there means "
+    "the reconstruction's proportions are off (a bone seen end-on, a hidden end); it is not an error of "
+    "the fitted joint angles, and it is not judged unless bone_error_pct is set."
+)
 
 
 @dataclass
@@ -70,7 +80,7 @@ class ValidationReport:
             "passed": self.passed, "checks": self.checks, "thresholds": self.thresholds,
             "joints": self.joints, "bones": self.bones, "reprojection_rms_px": self.reprojection_rms_px,
             "error_3d_mm": self.error_3d_mm, "error_3d_pct_reach": self.error_3d_pct_reach,
-            "reach_mm": self.reach_mm, "message": self.message, **self.extra,
+            "reach_mm": self.reach_mm, "bones_note": BONES_NOTE, "message": self.message, **self.extra,
         })
 
     def to_json(self) -> str:
@@ -85,13 +95,19 @@ class ValidationReport:
                 out.append(f"| {j['name']} | {j['status']} | - | - |")
             else:
                 out.append(f"| {j['name']} | {j['status']} | {j['rms']:.3f} {unit} | {j['max']:.3f} {unit} |")
-        out += ["", "| bone | URDF mm | recovered mm | error mm | error % |", "|---|---|---|---|---|"]
+        out += ["", BONES_NOTE, "",
+                "| bone | fitted robot (URDF) m | robot share % | reconstruction share % (scale-free) "
+                "| share difference % |", "|---|---|---|---|---|"]
         for b in self.bones:
-            rec = "-" if b["recovered_mm"] is None else f"{b['recovered_mm']:.1f}"
-            err = "-" if b["error_mm"] is None else f"{b['error_mm']:+.1f}"
-            pct = "-" if b["error_pct"] is None else f"{b['error_pct']:+.2f}"
-            out.append(f"| {b['name']} | {b['urdf_mm']:.1f} | {rec} | {err} | {pct} |")
+            rob = "-" if b.get("urdf_share_pct") is None else f"{b['urdf_share_pct']:.1f}"
+            rec = "-" if b.get("reconstruction_share_pct") is None else f"{b['reconstruction_share_pct']:.1f}"
+            diff = "-" if b.get("share_error_pct") is None else f"{b['share_error_pct']:+.1f}"
+            out.append(f"| {b['name']} | {b['urdf_mm'] / 1000:.4f} | {rob} | {rec} | {diff} |")
         out.append("")
+        rel = [j["name"] for j in self.joints if j.get("status") == "relative to frame 0"]
+        if rel:
+            out.append(f"- {', '.join(rel)}: seen only relative to frame 0 (a turn of the camera looks the same), "
+                       "so compared, and plotted, as the change since frame 0")
         if self.reprojection_rms_px is not None:
             out.append(f"- reprojection RMS: {self.reprojection_rms_px:.3f} px")
         if self.error_3d_mm is not None:
@@ -215,10 +231,17 @@ def _bone_errors(robot, fit) -> list[dict[str, Any]]:
     if poses is not None and fit.scale:
         rec = np.nanmedian(chain.bone_lengths(poses), axis=0) / fit.scale
     rows = []
+    ok = np.isfinite(rec) if rec is not None else np.zeros(len(urdf_len), bool)
+    urdf_total, rec_total = float(np.sum(urdf_len[ok])), float(np.sum(rec[ok])) if ok.any() else 0.0
     for k, (a, b) in enumerate(chain.links):
         L = float(urdf_len[k])
         r = None if rec is None or not np.isfinite(rec[k]) else float(rec[k])
+        # shares of the total over the bones the reconstruction has: scale-free, so comparable
+        us = 100 * L / urdf_total if r is not None and urdf_total > 0 else None
+        rs = 100 * r / rec_total if r is not None and rec_total > 0 else None
         rows.append({"name": f"{a}-{b}", "urdf_mm": 1000 * L, "recovered_mm": None if r is None else 1000 * r,
                      "error_mm": None if r is None else 1000 * (r - L),
-                     "error_pct": None if r is None or L < 1e-9 else 100 * (r - L) / L})
+                     "error_pct": None if r is None or L < 1e-9 else 100 * (r - L) / L,
+                     "urdf_share_pct": us, "reconstruction_share_pct": rs,
+                     "share_error_pct": None if us is None or rs is None or us < 1e-9 else 100 * (rs - us) / us})
     return rows

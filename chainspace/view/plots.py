@@ -90,7 +90,9 @@ def plot_joint_angles(fit: Any, truth_q: Any, path: str | os.PathLike, *, fps: f
     """Fitted joint angles over time (degrees) against the truth, one panel per joint.
 
     ``fit.q`` (F, nq) rad; ``truth_q`` (F, nq) rad or None. Joints the fit marks not observable are
-    drawn dashed. ``joints`` picks a subset by name.
+    drawn dashed. Joints it marks seen only relative to the first frame (``fit.relative``) are drawn,
+    fitted and truth alike, as their change since frame 0, and labelled "relative to frame 0".
+    ``joints`` picks a subset by name.
     """
     check_writable([path], overwrite)
     q = np.asarray(fit.q, dtype=float)
@@ -102,16 +104,25 @@ def plot_joint_angles(fit: Any, truth_q: Any, path: str | os.PathLike, *, fps: f
     if not pick:
         raise TrackError(f"none of {list(joints or [])} is a joint of the fit ({', '.join(names)})")
     observable = np.asarray(getattr(fit, "observable", np.ones(len(names), bool)), dtype=bool)
+    relative = np.asarray(getattr(fit, "relative", None) if getattr(fit, "relative", None) is not None
+                          else np.zeros(0, bool), dtype=bool)
+    relative = relative if relative.shape == (len(names),) else np.zeros(len(names), bool)
     ncols = 2 if len(pick) > 3 else 1
     nrows = math.ceil(len(pick) / ncols)
     fig, axes = _figure(nrows, ncols, figsize=(6.4 * ncols / 1.3, 1.9 * nrows + 0.6), sharex=True)
     t = np.arange(len(q)) / fps
     for k, i in enumerate(pick):
         ax = axes.flat[k]
+        rel = bool(relative[i])
+        since = (lambda a: np.unwrap(a - a[0])) if rel else (lambda a: a)  # noqa: E731
+        tag = " (relative to frame 0)" if rel else ""
         if truth is not None:
-            ax.plot(t, np.degrees(truth[:, i]), color="0.2", lw=1.2, label="truth")
-        ax.plot(t, np.degrees(q[:, i]), color="C1", lw=1.2, ls="-" if observable[i] else "--", label="fitted")
-        ax.set_ylabel(f"{names[i]} (deg)")
+            ax.plot(t, np.degrees(since(truth[:, i])), color="0.2", lw=1.2, label="truth" + tag)
+        ax.plot(t, np.degrees(since(q[:, i])), color="C1", lw=1.2, ls="-" if observable[i] else "--",
+                label="fitted" + tag)
+        ax.set_ylabel(f"{names[i]} (deg)" if not rel else f"{names[i]} (deg,\nrelative to frame 0)")
+        if rel:
+            ax.legend(loc="best", fontsize="small")
         ax.grid(True, alpha=0.3)
     for ax in axes.flat[len(pick):]:
         ax.set_visible(False)
