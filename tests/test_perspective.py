@@ -1,16 +1,18 @@
 """Static pinhole views of real walks, reconstruction with intrinsics, and the stage choice by track score."""
+import json
 import warnings
 
 import numpy as np
 import pytest
 
 from chainspace import ChainspaceError
+from chainspace.cameras.pinhole import PinholeCamera
+from chainspace.errors import CameraError
 from chainspace.io.datasets import cmu_walk, human17
 from chainspace.metrics import error_3d
-from chainspace.reconstruction.perspective import check_intrinsics, pixels_to_rays
 from chainspace.reconstruction.pipeline import reconstruct, track_score
-from chainspace.synthetic.views import (bend_walk, distort, orthographic_view, out_and_back, static_pinhole_view,
-                                        turning_walk, walking_direction)
+from chainspace.synthetic.views import (bend_walk, orthographic_view, out_and_back, static_pinhole_view, turning_walk,
+                                        walking_direction)
 
 
 @pytest.fixture(scope="module")
@@ -28,6 +30,7 @@ def test_static_pinhole_view_geometry(walk):
     assert W.shape == walk.shape[:2] + (2,) and np.isfinite(W).all()
     C = cam.to_camera(walk)
     assert np.allclose(W, C[..., :2] / C[..., 2:] * 750.0 + [320.0, 240.0])
+    assert cam.camera == PinholeCamera(750.0, 750.0, 320.0, 240.0, None, 640, 480)
     # 4 m from the mean position in the ground plane, 1.5 m above the floor, looking at it
     mean = walk.reshape(-1, 3).mean(0)
     d = cam.center - mean
@@ -40,15 +43,15 @@ def test_static_pinhole_view_geometry(walk):
     assert np.isnan(cam.project(behind[None])).all()
 
 
-def test_distortion_round_trip():
-    rng = np.random.default_rng(0)
-    xy = rng.uniform(-0.4, 0.4, size=(200, 2))
-    K = np.array([[700.0, 0, 320], [0, 710.0, 240], [0, 0, 1]])
+def test_distorted_view_is_the_pinhole_camera_model(walk):
+    # the synthetic view films through PinholeCamera (no projection or distortion of its own) and
+    # the camera's rays undo it
     dist = [-0.2, 0.05, 0.001, -0.002, 0.0]
-    d = distort(xy, dist)
-    px = np.stack([700 * d[:, 0] + 320, 710 * d[:, 1] + 240], -1)
-    K_, dist_ = check_intrinsics({"K": K, "dist": dist})
-    assert np.allclose(pixels_to_rays(px, K_, dist_), xy, atol=1e-9)
+    W, cam = static_pinhole_view(walk, distance_m=3.0, azimuth_deg=30.0, dist=dist, seed=0)
+    assert np.array_equal(cam.camera.dist, dist)
+    C = cam.to_camera(walk)
+    assert np.allclose(W, cam.camera.distort(C[..., :2] / C[..., 2:]))
+    assert np.allclose(cam.camera.rays(W), C[..., :2] / C[..., 2:], atol=1e-9)
 
 
 def test_turned_walks_are_the_same_motion_on_a_bent_path(walk):
@@ -79,14 +82,14 @@ def test_noise_free_pinhole_walk_with_intrinsics(chain, walk):
                                  dist=[-0.1, 0.02, 0, 0, 0], seed=0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        rec = reconstruct(W, chain, intrinsics=cam.intrinsics)
+        rec = reconstruct(W, chain, intrinsics=cam.camera)
         ortho = reconstruct(orthographic_view(walk, cam), chain)
     err, err_o = error_3d(rec.poses, walk), error_3d(ortho.poses, walk)
     print(f"intrinsics {err * 1000:.1f} mm, orthographic {err_o * 1000:.1f} mm")
     assert err < ERR_INTRINSICS
     assert rec.reprojection_error() < 1.7  # px (measured 1.17): the perspective model fits the pinhole tracks
     assert rec.points_camera.shape == walk.shape and (rec.points_camera[..., 2] > 2.5).all()
-    assert rec.intrinsics["K"].shape == (3, 3) and "perspective" in rec.history
+    assert rec.intrinsics == cam.camera and "perspective" in rec.history
     # the depth of the subject is recovered up to the global scale (the initial pose's)
     depth = cam.to_camera(walk)[..., 2].mean(1)
     ratio = rec.points_camera[..., 2].mean(1) / depth
@@ -124,26 +127,70 @@ def test_stage_choice_never_keeps_the_worse_track_score(chain, walk, motion):
         assert "kept the KCS stage" in rec.message
 
 
+def _calibration(tmp_path, **content):
+    path = tmp_path / "camera.json"
+    path.write_text(json.dumps(content))
+    return path
+
+
+# intrinsics go through chainspace.cameras.pinhole.as_camera: a PinholeCamera, a (3, 3) K or a
+# calibration file; anything wrong is a CameraError (a ChainspaceError) saying what
 @pytest.mark.parametrize("bad, what", [
     (np.eye(2), "shape"),
     (np.array([[-700.0, 0, 320], [0, 700, 240], [0, 0, 1]]), "focal"),
-    (np.array([[700.0, 0, 320], [0, 700, 240], [0, 0, 2]]), "last row"),
-    (np.array([[np.nan, 0, 320], [0, 700, 240], [0, 0, 1]]), "NaN"),
-    ({"K": np.diag([700.0, 700, 1]), "dist": [0.1, 0.2]}, "coefficients"),
-    ({"K": np.diag([700.0, 700, 1]), "dist": [np.inf, 0, 0, 0]}, "dist"),
-    ({"dist": [0, 0, 0, 0]}, "needs 'K'"),
-    ({"K": np.diag([700.0, 700, 1]), "focal": 3}, "unknown keys"),
-    ("camera.yaml", "numeric"),
+    (np.array([[700.0, 0, 320], [0, 700, 240], [0.1, 0, 1]]), "last row"),
+    (np.array([[np.nan, 0, 320], [0, 700, 240], [0, 0, 1]]), "non-finite"),
+    (np.array([[700.0, 5, 320], [0, 700, 240], [0, 0, 1]]), "skew"),
+    (dict(K=np.diag([700.0, 700, 1]).tolist(), dist=[0.1, 0.2]), "coefficients"),
+    (dict(K=np.diag([700.0, 700, 1]).tolist(), dist=[1e999, 0, 0, 0]), "finite"),
+    (dict(dist=[0, 0, 0, 0]), "no camera matrix"),
+    ({"K": np.diag([700.0, 700, 1])}, "not a dict"),
+    (3.0, "not a float"),
 ])
-def test_bad_intrinsics_are_a_clear_error(chain, walk, bad, what):
+def test_bad_intrinsics_are_a_clear_error(chain, walk, tmp_path, bad, what):
     W, cam = static_pinhole_view(walk[:20], seed=0)
-    with pytest.raises(ChainspaceError, match=what):
+    if isinstance(bad, dict) and what != "not a dict":
+        bad = _calibration(tmp_path, **bad)
+    with pytest.raises(CameraError, match=what):
         reconstruct(W, chain, intrinsics=bad)
+
+
+def test_missing_calibration_file_is_a_clear_error(chain, walk, tmp_path):
+    W, cam = static_pinhole_view(walk[:20], seed=0)
+    with pytest.raises(ChainspaceError, match="no such calibration file"):
+        reconstruct(W, chain, intrinsics=tmp_path / "camera.yaml")
+
+
+def test_intrinsics_as_matrix_file_or_camera_are_the_same(chain, walk, tmp_path):
+    W, cam = static_pinhole_view(walk[:30], seed=0)
+    path = cam.camera.save(tmp_path / "camera.yaml")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        recs = [reconstruct(W, chain, intrinsics=x) for x in (cam.camera, cam.camera.K, path)]
+    for rec in recs:
+        assert isinstance(rec.intrinsics, PinholeCamera) and np.allclose(rec.intrinsics.K, cam.camera.K)
+        assert np.allclose(rec.poses, recs[0].poses)
+
+
+def test_reconstruction_with_intrinsics_saves_and_loads(chain, walk, tmp_path):
+    from chainspace.io.results import load_results, save_results
+
+    W, cam = static_pinhole_view(walk[:30], dist=[-0.1, 0.02, 0, 0, 0], seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = reconstruct(W, chain, intrinsics=cam.camera)
+    save_results(rec, tmp_path)
+    back = load_results(tmp_path / "reconstruction.npz")
+    assert back.intrinsics == cam.camera
+    assert np.array_equal(back.points_camera, rec.points_camera)
+    assert back.reprojection_error() == pytest.approx(rec.reprojection_error())
+    summary = json.loads((tmp_path / "reconstruction.json").read_text())
+    assert summary["intrinsics"]["K"] == cam.camera.K.tolist()
 
 
 def test_distortion_that_cannot_be_undone_is_an_error(chain, walk):
     # k1 = -10: the distorted radius r (1 - 10 r^2) never exceeds 0.12, yet the subject 1.5 m away
     # reaches further out: most points have no undistorted position
     W, cam = static_pinhole_view(walk[:20], distance_m=1.5, seed=0)
-    with pytest.raises(ChainspaceError, match="distortion cannot be undone"):
-        reconstruct(W, chain, intrinsics={"K": cam.K, "dist": [-10.0, 0, 0, 0, 0]})
+    with pytest.raises(CameraError, match="distortion cannot be undone"):
+        reconstruct(W, chain, intrinsics=PinholeCamera.from_matrix(cam.camera.K, [-10.0, 0, 0, 0, 0]))

@@ -272,7 +272,7 @@ def evaluate_static(poses: np.ndarray, chain: Any, motion: str, *, noise_px: flo
         warnings.simplefilter("ignore")
         for col, tracks, kw in (("ortho KCS", Wo, {"method": "kcs"}), ("ortho default", Wo, {}),
                                 ("pinhole KCS", W, {"method": "kcs"}), ("pinhole default", W, {}),
-                                ("pinhole + intrinsics", W, {"intrinsics": cam.intrinsics})):
+                                ("pinhole + intrinsics", W, {"intrinsics": cam.camera})):
             t0 = time.perf_counter()
             rec = reconstruct(tracks, chain, **kw)
             out[col] = error_3d(rec.poses, X)

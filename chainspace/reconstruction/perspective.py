@@ -1,6 +1,10 @@
 """Calibrated cameras: pixel tracks -> the camera's rays, and the perspective stages of
 :func:`chainspace.reconstruction.pipeline.reconstruct` with ``intrinsics``.
 
+The camera is the project's one model, :class:`chainspace.cameras.pinhole.PinholeCamera`: it turns
+pixels into rays (:meth:`~chainspace.cameras.pinhole.PinholeCamera.rays`, distortion removed) and
+points back into pixels (:meth:`~chainspace.cameras.pinhole.PinholeCamera.project`).
+
 Steps: (1) undistort and normalise the tracks to rays; (2) turn the camera about its centre in
 every frame so that the subject's mean ray is the optical axis (:func:`centring_rotations`; weak
 perspective is most accurate for a centred subject); (3) the weak-perspective stages on those rays;
@@ -31,94 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import TrackError
 
-__all__ = ["check_intrinsics", "undistort_points", "pixels_to_rays", "rays_to_pixels", "camera_points"]
-
-
-def check_intrinsics(intrinsics: Any) -> tuple[np.ndarray, np.ndarray | None]:
-    """``(K (3, 3), dist (5,) or None)`` from a (3, 3) matrix, a dict ``{"K": ..., "dist": ...}`` or
-    an object with a ``K`` attribute (and ``dist`` / ``distortion``). Raises :class:`TrackError` (a
-    :class:`~chainspace.errors.ChainspaceError`) saying what is wrong."""
-    dist = None
-    if isinstance(intrinsics, dict):
-        unknown = set(intrinsics) - {"K", "dist", "distortion"}
-        if unknown:
-            raise TrackError(f"intrinsics: unknown keys {sorted(unknown)}; give 'K' and optionally 'dist'")
-        if "K" not in intrinsics:
-            raise TrackError("intrinsics: a dict needs 'K', the (3, 3) camera matrix")
-        K = intrinsics["K"]
-        dist = intrinsics.get("dist", intrinsics.get("distortion"))
-    elif hasattr(intrinsics, "K"):
-        K = intrinsics.K
-        dist = getattr(intrinsics, "dist", getattr(intrinsics, "distortion", None))
-    else:
-        K = intrinsics
-    try:
-        K = np.array(K, dtype=float)
-    except (TypeError, ValueError):
-        raise TrackError(f"intrinsics: K is not a numeric (3, 3) matrix: {K!r}") from None
-    if K.shape != (3, 3):
-        raise TrackError(f"intrinsics: K has shape {K.shape}, expected (3, 3) [[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
-    if not np.isfinite(K).all():
-        raise TrackError("intrinsics: K contains NaN or inf")
-    if not np.allclose(K[2], [0.0, 0.0, 1.0]) or K[1, 0] != 0 or (K[2] != [0.0, 0.0, 1.0]).any():
-        raise TrackError(f"intrinsics: the last row of K must be [0, 0, 1] and K[1, 0] zero, got {K.tolist()}")
-    if not (K[0, 0] > 0 and K[1, 1] > 0):
-        raise TrackError(f"intrinsics: the focal lengths fx = {K[0, 0]:g}, fy = {K[1, 1]:g} must be > 0 (pixels)")
-    if abs(K[0, 1]) > 0.5 * K[0, 0]:
-        raise TrackError(f"intrinsics: skew K[0, 1] = {K[0, 1]:g} is not plausible for fx = {K[0, 0]:g}")
-    if dist is not None:
-        try:
-            d = np.array(dist, dtype=float).ravel()
-        except (TypeError, ValueError):
-            raise TrackError(f"intrinsics: dist is not numeric: {dist!r}") from None
-        if len(d) not in (4, 5) and not (len(d) > 5 and np.all(d[5:] == 0)):
-            raise TrackError(f"intrinsics: dist has {len(d)} coefficients; expected OpenCV (k1, k2, p1, p2[, k3])")
-        if not np.isfinite(d).all():
-            raise TrackError("intrinsics: dist contains NaN or inf")
-        dist = np.zeros(5)
-        dist[:min(len(d), 5)] = d[:5]
-        if not dist.any():
-            dist = None
-    return K, dist
-
-
-def _distort(xy: np.ndarray, d: np.ndarray) -> np.ndarray:
-    from ..synthetic.views import distort
-
-    return distort(xy, d)
-
-
-def undistort_points(xy_d: np.ndarray, dist: np.ndarray | None, *, n_iter: int = 50) -> np.ndarray:
-    """Normalised distorted coordinates (..., 2) -> undistorted, by fixed-point iteration; NaN
-    where the iteration does not reach 1e-10 (outside the range where the distortion is one-to-one)."""
-    if dist is None:
-        return xy_d.copy()
-    k1, k2, p1, p2, k3 = dist
-    xy = xy_d.copy()
-    for _ in range(n_iter):
-        x, y = xy[..., 0], xy[..., 1]
-        r2 = x * x + y * y
-        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-        xy = np.stack([(xy_d[..., 0] - dx) / radial, (xy_d[..., 1] - dy) / radial], -1)
-    err = np.linalg.norm(_distort(xy, dist) - xy_d, axis=-1)
-    return np.where((err < 1e-10 * (1 + np.linalg.norm(xy_d, axis=-1)))[..., None], xy, np.nan)
-
-
-def pixels_to_rays(px: np.ndarray, K: np.ndarray, dist: np.ndarray | None) -> np.ndarray:
-    """Pixel tracks (..., 2) -> undistorted normalised coordinates (x/z, y/z) (NaN stays NaN)."""
-    y = (px[..., 1] - K[1, 2]) / K[1, 1]
-    x = (px[..., 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
-    return undistort_points(np.stack([x, y], -1), dist)
-
-
-def rays_to_pixels(points_cam: np.ndarray, K: np.ndarray, dist: np.ndarray | None) -> np.ndarray:
-    from ..synthetic.views import project_pinhole
-
-    return project_pinhole(points_cam, K, dist)
+__all__ = ["centring_rotations", "turn_rays", "camera_points", "perspective_refine"]
 
 
 def centring_rotations(rays: np.ndarray, weights: np.ndarray) -> np.ndarray:

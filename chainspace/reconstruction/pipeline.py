@@ -29,7 +29,7 @@ import numpy as np
 
 from ..cameras.weak import fit_cameras, smooth_scales
 from ..chain import KinematicChain
-from ..errors import ConvergenceWarning, TrackError, is_real
+from ..errors import CameraError, ChainspaceError, ConvergenceWarning, TrackError, is_real
 from .kcs import (bone_observations, fit_translations, kcs_factorize, reprojection_rms,
                   reprojection_with_translations)
 from ..metrics import error_3d
@@ -40,6 +40,7 @@ __all__ = ["reconstruct", "Reconstruction", "METHODS", "MIN_FRAMES", "MIN_POINTS
 METHODS = ("default", "kcs", "rigid")
 MIN_FRAMES = 2  # frames with at least MIN_POINTS visible points
 MIN_POINTS = 3  # a weak-perspective camera needs two independent bones: three points
+UNDISTORT_TOL_PX = 1e-6  # a track point whose undistorted ray reprojects further away has no ray
 
 
 @dataclass
@@ -62,8 +63,8 @@ class Reconstruction:
         (px^2, after every block) and its settings "noise" (estimated track noise, px), "delta"
         (Huber threshold, px) and "lam_smooth" (one value each).
     timings : {stage: seconds}.
-    intrinsics : with a calibrated camera, ``{"K": (3, 3), "dist": (5,) or None}``; else None.
-        Then ``poses`` are root-relative in the camera's axes (x right, y down, z along the view),
+    intrinsics : with a calibrated camera, its :class:`~chainspace.cameras.pinhole.PinholeCamera`;
+        else None. Then ``poses`` are root-relative in the camera's axes (x right, y down, z along the view),
         ``cameras[k] = I[:2] / Z_k`` with ``Z_k`` the mean depth of the joints in frame k (pose
         units) and ``translations[k]`` the root's ray (x/z, y/z): ``tracks`` are reproduced by the
         perspective projection of ``points_camera``, ``poses @ cameras^T + translations`` is only
@@ -86,7 +87,7 @@ class Reconstruction:
     message: str
     history: dict[str, dict[str, list[float]]] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
-    intrinsics: dict | None = None
+    intrinsics: Any = None
     points_camera: np.ndarray | None = None
 
     def reprojection_error(self) -> float:
@@ -94,9 +95,7 @@ class Reconstruction:
         (with intrinsics: the perspective projection of ``points_camera``, pixels)."""
         w = np.ones(self.tracks.shape[:2]) if self.confidence is None else self.confidence
         if self.intrinsics is not None:
-            from .perspective import rays_to_pixels
-            return _rms(self.tracks, w, rays_to_pixels(self.points_camera, self.intrinsics["K"],
-                                                         self.intrinsics["dist"]))
+            return _rms(self.tracks, w, self.intrinsics.project(self.points_camera))
         return reprojection_rms(self.tracks, w, self.poses, self.cameras, self.translations)
 
     def __repr__(self) -> str:
@@ -367,9 +366,10 @@ def reconstruct(
         Weights of the refinement objective: lam_len, lam_smooth, lam_prior, delta (see
         :func:`chainspace.reconstruction.refine.refine_bones`).
     intrinsics
-        The calibrated camera that filmed the tracks (pixels): a (3, 3) matrix ``K``, a dict
-        ``{"K": K, "dist": (k1, k2, p1, p2[, k3])}`` (OpenCV distortion) or an object with ``K``
-        (and ``dist``) attributes. The tracks are undistorted to rays and the perspective is
+        The calibrated camera that filmed the tracks, anything
+        :func:`chainspace.cameras.pinhole.as_camera` takes: a
+        :class:`~chainspace.cameras.pinhole.PinholeCamera` (OpenCV distortion), a (3, 3) matrix
+        ``K`` (pixels) or a calibration file path. The tracks are undistorted to rays and the perspective is
         handled in three steps (:mod:`chainspace.reconstruction.perspective`): the rays are seen
         through virtual cameras turned towards the subject in every frame; the weak-perspective
         stages run on them; a perspective refinement (per frame: root position and bones in camera
@@ -385,6 +385,9 @@ def reconstruct(
     TrackError
         Tracks, confidences or poses that cannot be used, with what is wrong and where. A
         reconstruction needs at least ``MIN_FRAMES`` frames with ``MIN_POINTS`` visible points.
+    CameraError
+        ``intrinsics`` that cannot be used (see :func:`~chainspace.cameras.pinhole.as_camera`), or a
+        lens distortion that cannot be undone for most of the tracked points.
 
     Notes
     -----
@@ -402,19 +405,19 @@ def reconstruct(
     if not (isinstance(perspective_iter, (int, np.integer)) and not isinstance(perspective_iter, bool)
             and perspective_iter >= 1):
         raise TrackError(f"perspective_iter must be a whole number >= 1, not {perspective_iter!r}")
-    K = dist = None
+    camera = None
     if intrinsics is not None:
-        from .perspective import check_intrinsics
-        K, dist = check_intrinsics(intrinsics)
+        from ..cameras.pinhole import as_camera
+        camera = as_camera(intrinsics)
     W, c, given, X0, T = _check_inputs(tracks, chain, init_pose, confidence, truth)
     try:
         with np.errstate(all="ignore"), _one_blas_thread():
-            if K is not None:
+            if camera is not None:
                 return _run_perspective(W, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis,
-                                        refine_options, K, dist, int(perspective_iter))
+                                        refine_options, camera, int(perspective_iter))
             return _run(W, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis, refine_options)
     except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
-        if isinstance(exc, TrackError):
+        if isinstance(exc, ChainspaceError):  # TrackError, CameraError: already say what is wrong
             raise
         raise TrackError(f"the reconstruction failed numerically on these tracks ({type(exc).__name__}: {exc}); "
                          "check for degenerate tracks (points that never move apart)") from None
@@ -461,24 +464,29 @@ def _run(W_in, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis,
 
 
 def _run_perspective(W_px, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis, refine_options,
-                     K, dist, n_pass):
+                     camera, n_pass):
     """:func:`_run` on the camera's rays, corrected for perspective pass after pass (see
     :mod:`chainspace.reconstruction.perspective`)."""
-    from .perspective import (camera_points, centring_rotations, perspective_refine, pixels_to_rays, rays_to_pixels,
-                              turn_rays)
+    from .perspective import camera_points, centring_rotations, perspective_refine, turn_rays
 
-    rays = pixels_to_rays(W_px, K, dist)
-    bad = np.isfinite(W_px).all(-1) & ~np.isfinite(rays).all(-1)
-    if bad.mean() > 0.5:
-        raise TrackError(f"intrinsics: the lens distortion cannot be undone for {bad.mean():.0%} of the tracked "
-                         "points (the distortion model is not one-to-one there): check dist and K")
+    rays = camera.rays(W_px)
+    # a ray whose distortion does not land back on its pixel has no undistorted position (past the
+    # fold of the distortion polynomial, where the model is not one-to-one)
+    with np.errstate(all="ignore"):
+        miss = np.linalg.norm(camera.distort(rays) - W_px, axis=-1)
+    seen = np.isfinite(W_px).all(-1)
+    bad = seen & ~(miss < UNDISTORT_TOL_PX)
+    rays[bad] = np.nan
+    if bad.sum() > 0.5 * seen.sum():
+        raise CameraError(f"intrinsics: the lens distortion cannot be undone for {bad.sum() / seen.sum():.0%} of "
+                          "the tracked points (the distortion model is not one-to-one there): check dist and K")
     c = np.where(np.isfinite(rays).all(-1), c, 0.0)
     if ((c > 0).sum(1) >= MIN_POINTS).sum() < MIN_FRAMES:
-        raise TrackError("intrinsics: after undistortion too few points are left to reconstruct")
+        raise CameraError("intrinsics: after undistortion too few points are left to reconstruct")
     rays = np.where((c > 0)[..., None], rays, np.nan)
     opts = dict(refine_options or {})
     if "delta" in opts:  # given in pixels: rays are pixels / f
-        opts["delta"] = opts["delta"] / float(np.sqrt(K[0, 0] * K[1, 1]))
+        opts["delta"] = opts["delta"] / float(np.sqrt(camera.fx * camera.fy))
     # virtual cameras turned towards the subject in every frame: there weak perspective is accurate
     Q = centring_rotations(rays, c)
     rays_real, rays = rays, turn_rays(rays, Q)
@@ -493,7 +501,7 @@ def _run_perspective(W_px, c, given, X0, T, chain, method, max_iter, tol, progre
             timings[k] = timings.get(k, 0.0) + v
         pts, d, Z = camera_points(rec.poses, rec.cameras, rec.translations, c)
         pts = pts @ Q  # virtual camera axes -> the real camera's
-        persp["reprojection"].append(_rms(W_px, c, rays_to_pixels(pts, K, dist)))
+        persp["reprojection"].append(_rms(W_px, c, camera.project(pts)))
         scale = np.sqrt((rec.cameras**2).sum(-1)).mean(-1)
         corrected = rays * (1.0 + scale[:, None] * d)[..., None]
         seen = c > 0
@@ -518,7 +526,7 @@ def _run_perspective(W_px, c, given, X0, T, chain, method, max_iter, tol, progre
     Tr = np.einsum("fij,fi->fj", Q, Tr)
     poses = chain.poses_from_bones(xb)
     pts = poses + Tr[:, None]
-    persp["reprojection"].append(_rms(W_px, c, rays_to_pixels(pts, K, dist)))
+    persp["reprojection"].append(_rms(W_px, c, camera.project(pts)))
     if T is not None:
         persp["error_3d"] = [error_3d(poses, T)]
     rec.poses = poses
@@ -529,7 +537,7 @@ def _run_perspective(W_px, c, given, X0, T, chain, method, max_iter, tol, progre
     Zk = pts[..., 2].mean(1)
     rec.cameras = np.broadcast_to(np.eye(3)[:2], (len(pts), 2, 3)) / Zk[:, None, None]
     rec.translations = Tr[:, :2] / Zk[:, None]
-    rec.intrinsics = {"K": K, "dist": dist}
+    rec.intrinsics = camera
     rec.points_camera = pts
     rec.history["perspective"] = persp
     rec.timings = timings

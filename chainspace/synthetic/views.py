@@ -9,6 +9,7 @@ points down, as in pixel coordinates) and ``s`` the scale in image units (px) pe
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -16,8 +17,8 @@ import numpy as np
 from ..errors import TrackError
 
 __all__ = ["orbit_cameras", "observe", "scale_for_span", "look_rotation", "swing_motion", "PinholeView",
-           "static_pinhole_view", "orthographic_view", "project_pinhole", "distort", "bend_walk", "turning_walk",
-           "out_and_back", "walking_direction"]
+           "static_pinhole_view", "orthographic_view", "bend_walk", "turning_walk", "out_and_back",
+           "walking_direction"]
 
 _UP = {"z": (np.array([0.0, 0, 1]), np.array([1.0, 0, 0]), np.array([0.0, 1, 0])),
        "y": (np.array([0.0, 1, 0]), np.array([0.0, 0, 1]), np.array([1.0, 0, 0]))}
@@ -142,69 +143,31 @@ def swing_motion(chain: Any, n_frames: int = 120, *, amplitude_deg: float = 30.0
 
 
 # ------------------------------------------------------------------------------ static pinhole camera
+@dataclass(frozen=True)
 class PinholeView:
-    """A static pinhole camera: intrinsics ``K`` (3, 3), rotation ``R`` (3, 3, rows: image right, image
-    down, viewing direction) and translation ``t`` (3,) mapping world points to camera axes as
-    ``x_cam = R x + t``; ``dist`` the OpenCV distortion coefficients (k1, k2, p1, p2[, k3]) or None;
-    ``image_size`` (width, height) px. ``center`` is the camera centre in the world."""
+    """Where a static :class:`~chainspace.cameras.pinhole.PinholeCamera` stands: ``camera`` (the
+    intrinsics, projection and distortion: the project's one camera model), rotation ``R`` (3, 3,
+    rows: image right, image down, viewing direction) and translation ``t`` (3,), ``x_cam = R x + t``.
+    ``center`` is the camera centre in the world."""
 
-    def __init__(self, K, R, t, dist=None, image_size=(640, 480)):
-        self.K = np.asarray(K, float)
-        self.R = np.asarray(R, float)
-        self.t = np.asarray(t, float)
-        self.dist = None if dist is None else np.asarray(dist, float)
-        self.image_size = tuple(image_size)
+    camera: Any
+    R: np.ndarray
+    t: np.ndarray
 
     @property
     def center(self) -> np.ndarray:
         return -self.R.T @ self.t
 
-    @property
-    def intrinsics(self) -> dict:
-        """What :func:`chainspace.reconstruction.pipeline.reconstruct` takes as ``intrinsics``."""
-        return {"K": self.K.copy(), "dist": None if self.dist is None else self.dist.copy()}
-
     def to_camera(self, points: Any) -> np.ndarray:
         return np.asarray(points, float) @ self.R.T + self.t
 
     def project(self, points: Any) -> np.ndarray:
-        """World points (..., 3) -> pixels (..., 2); NaN for points at or behind the camera."""
-        return project_pinhole(self.to_camera(points), self.K, self.dist)
+        """World points (..., 3) -> pixels (..., 2) (:meth:`PinholeCamera.project`: NaN at or behind the camera)."""
+        return self.camera.project(self.to_camera(points))
 
     def __repr__(self) -> str:
         c = self.center
-        return (f"PinholeView(f={self.K[0, 0]:.0f} px, centre=({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}), "
-                f"image {self.image_size[0]}x{self.image_size[1]}, dist={None if self.dist is None else list(self.dist)})")
-
-
-def distort(xy: np.ndarray, dist: Any) -> np.ndarray:
-    """OpenCV lens distortion (k1, k2, p1, p2[, k3]) of normalised coordinates (..., 2)."""
-    if dist is None:
-        return xy
-    d = np.zeros(5)
-    dd = np.asarray(dist, float).ravel()
-    d[:len(dd)] = dd
-    k1, k2, p1, p2, k3 = d
-    x, y = xy[..., 0], xy[..., 1]
-    r2 = x * x + y * y
-    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-    return np.stack([xd, yd], -1)
-
-
-def project_pinhole(points_cam: Any, K: Any, dist: Any = None, *, min_depth: float = 1e-6) -> np.ndarray:
-    """Camera-axes points (..., 3) -> pixels (..., 2) through ``K`` and optional distortion; NaN
-    where the depth is below ``min_depth`` (behind the camera)."""
-    P = np.asarray(points_cam, float)
-    K = np.asarray(K, float)
-    z = P[..., 2]
-    ok = z > min_depth
-    with np.errstate(all="ignore"):
-        xy = P[..., :2] / np.where(ok, z, 1.0)[..., None]
-    xy = distort(xy, dist)
-    px = np.stack([K[0, 0] * xy[..., 0] + K[0, 1] * xy[..., 1] + K[0, 2], K[1, 1] * xy[..., 1] + K[1, 2]], -1)
-    return np.where(ok[..., None], px, np.nan)
+        return f"PinholeView({self.camera!r}, centre=({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}))"
 
 
 def static_pinhole_view(
@@ -248,9 +211,10 @@ def static_pinhole_view(
     right /= np.linalg.norm(right)
     down = np.cross(fwd, right)
     R = np.stack([right, down, fwd])
+    from ..cameras.pinhole import PinholeCamera
+
     w, h = image_size
-    K = np.array([[f_px, 0.0, w / 2.0], [0.0, f_px, h / 2.0], [0.0, 0.0, 1.0]])
-    cam = PinholeView(K, R, -R @ centre, dist, image_size)
+    cam = PinholeView(PinholeCamera(f_px, f_px, w / 2.0, h / 2.0, dist, w, h), R, -R @ centre)
     W = cam.project(X)
     if noise_px > 0:
         W = W + rng.normal(scale=float(noise_px), size=W.shape)
@@ -264,8 +228,8 @@ def orthographic_view(poses: Any, camera: PinholeView, *, noise_px: float = 0.0,
     X = np.asarray(poses, float)
     Xc = camera.to_camera(X)
     zbar = float(np.nanmean(Xc[..., 2]))
-    f = camera.K[0, 0]
-    W = f * (Xc[..., :2] - np.nanmean(Xc[..., :2].reshape(-1, 2), 0)) / zbar + camera.K[:2, 2]
+    K = camera.camera.K
+    W = K[0, 0] * (Xc[..., :2] - np.nanmean(Xc[..., :2].reshape(-1, 2), 0)) / zbar + K[:2, 2]
     if noise_px > 0:
         W = W + np.random.default_rng(seed).normal(scale=float(noise_px), size=W.shape)
     return W
