@@ -372,7 +372,8 @@ def reconstruct(
         ``K`` (pixels) or a calibration file path. The tracks are undistorted to rays and the perspective is
         handled in three steps (:mod:`chainspace.reconstruction.perspective`): the rays are seen
         through virtual cameras turned towards the subject in every frame; the weak-perspective
-        stages run on them; a perspective refinement (per frame: root position and bones in camera
+        stages run on them, brought to one scale with the subject's depth in every frame estimated
+        from the image bone lengths (a first weak pass gives the lengths); a perspective refinement (per frame: root position and bones in camera
         axes; shared bone lengths) fits the full pinhole model. ``perspective_iter`` > 1 adds
         POSIT-style passes that rerun the weak-perspective stages on rays corrected with the
         previous pass's depths; default 1 (no such pass): on CMU 35_01/35_02 (straight, turning,
@@ -467,7 +468,7 @@ def _run_perspective(W_px, c, given, X0, T, chain, method, max_iter, tol, progre
                      camera, n_pass):
     """:func:`_run` on the camera's rays, corrected for perspective pass after pass (see
     :mod:`chainspace.reconstruction.perspective`)."""
-    from .perspective import camera_points, centring_rotations, perspective_refine, turn_rays
+    from .perspective import camera_points, centring_rotations, depth_from_bones, perspective_refine, turn_rays
 
     rays = camera.rays(W_px)
     # a ray whose distortion does not land back on its pixel has no undistorted position (past the
@@ -493,12 +494,26 @@ def _run_perspective(W_px, c, given, X0, T, chain, method, max_iter, tol, progre
     persp: dict[str, list[float]] = {"reprojection": [], "change": []}
     timings: dict[str, float] = {}
     Wc, rec = rays, None
+    # one image scale for the weak stages: the subject's distance changes over a sequence (a walk
+    # round a circle 3-5 m away: +-10-15 %), which they cope with badly. A first weak pass gives the
+    # bone lengths; the depth of every frame follows from its image bone lengths (smoothed in time);
+    # frame k's rays times depth_k / mean depth are then seen at one common scale.
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        rec0 = _run(rays, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis, opts)
+    for k, v in rec0.timings.items():
+        timings["depth " + k] = v
+    depth = depth_from_bones(chain, rays, np.nanmean(chain.bone_lengths(rec0.poses), axis=0))
+    gain = depth / depth.mean()  # rays of frame k are multiplied by gain[k] before the weak stages
+    Wc = rays * gain[:, None, None]
     for i in range(n_pass):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ConvergenceWarning)
             rec = _run(Wc, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis, opts)
         for k, v in rec.timings.items():
             timings[k] = timings.get(k, 0.0) + v
+        rec.cameras = rec.cameras / gain[:, None, None]  # back to the real rays' scales
+        rec.translations = rec.translations / gain[:, None]
         pts, d, Z = camera_points(rec.poses, rec.cameras, rec.translations, c)
         pts = pts @ Q  # virtual camera axes -> the real camera's
         persp["reprojection"].append(_rms(W_px, c, camera.project(pts)))
