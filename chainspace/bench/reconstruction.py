@@ -232,3 +232,104 @@ def format_speed(rows: Sequence[dict[str, float]]) -> str:
     lines.append("")
     lines.append("Fastest of repeated runs (wall clock); CPU s is that run's process time (one BLAS thread).")
     return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------- static pinhole cameras
+STATIC_COLUMNS = ("ortho KCS", "ortho default", "pinhole KCS", "pinhole default", "pinhole + intrinsics")
+MOTIONS = ("straight", "turning 360", "towards/away")
+
+
+def static_sequences(which: str) -> list[tuple[str, np.ndarray]]:
+    """``[(name, poses)]``: "tune" = CMU 35_01, 35_02 (the walks the defaults were looked at on);
+    "held out" = walks 02_01, 07_01, 16_15 and the first subject-09 run (never tuned on)."""
+    from ..io import datasets
+
+    if which == "tune":
+        return [(f"35_{t:02d}", datasets.cmu_walk(35, t)) for t in (1, 2)]
+    out = [(f"{s:02d}_{t:02d}", datasets.cmu_walk(s, t)) for s, t in ((2, 1), (7, 1), (16, 15))]
+    runs = datasets.cmu09_runs()
+    if runs:
+        out.append(("09 run 1", runs[0]))
+    return out
+
+
+def evaluate_static(poses: np.ndarray, chain: Any, motion: str, *, noise_px: float, seed: int) -> dict[str, float]:
+    """3D errors (m) of every static column on one sequence, one motion and one random camera:
+    distance uniform in [3, 5] m, f uniform in [700, 800] px, 640 x 480, height 1.5 m; for
+    "straight" and "turning 360" the camera looks across the walk (90 degrees from its direction,
+    +-30), for "towards/away" along it. Also the perspective result's reprojection (px)."""
+    from ..reconstruction.pipeline import reconstruct
+    from ..synthetic.views import orthographic_view, out_and_back, static_pinhole_view, turning_walk, walking_direction
+
+    rng = np.random.default_rng(seed)
+    X = {"straight": lambda p: p, "turning 360": turning_walk, "towards/away": out_and_back}[motion](poses)
+    az = walking_direction(poses) + (0.0 if motion == "towards/away" else 90.0) + rng.uniform(-30, 30)
+    W, cam = static_pinhole_view(X, distance_m=rng.uniform(3.0, 5.0), f_px=rng.uniform(700, 800), azimuth_deg=az,
+                                 noise_px=noise_px, seed=seed + 1)
+    Wo = orthographic_view(X, cam, noise_px=noise_px, seed=seed + 2)
+    out = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for col, tracks, kw in (("ortho KCS", Wo, {"method": "kcs"}), ("ortho default", Wo, {}),
+                                ("pinhole KCS", W, {"method": "kcs"}), ("pinhole default", W, {}),
+                                ("pinhole + intrinsics", W, {"intrinsics": cam.camera})):
+            t0 = time.perf_counter()
+            rec = reconstruct(tracks, chain, **kw)
+            out[col] = error_3d(rec.poses, X)
+            out[col + " s"] = time.perf_counter() - t0
+            if "intrinsics" in kw:
+                out["reprojection px"] = rec.reprojection_error()
+    return out
+
+
+def run_static_benchmark(which: Sequence[str] = ("tune", "held out"), motions: Sequence[str] = MOTIONS,
+                         noise_levels: Sequence[float] = (0.0, 2.0), n_cameras: int = 1,
+                         progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
+    """One row per (sequence set, motion, noise): every run's errors kept (means and maxima)."""
+    from ..io.datasets import human17
+
+    chain = human17()
+    rows = []
+    for w in which:
+        seqs = static_sequences(w)
+        for motion in motions:
+            for noise in noise_levels:
+                runs = []
+                for name, poses in seqs:
+                    for cam in range(n_cameras):
+                        runs.append(evaluate_static(poses, chain, motion, noise_px=noise,
+                                                    seed=_seed("static", name, motion, noise, cam)))
+                        if progress:
+                            progress(f"{w} {motion} {noise:g} px {name} cam {cam}: " + ", ".join(
+                                f"{k} {v * 1000:.1f}" for k, v in runs[-1].items() if k in STATIC_COLUMNS))
+                rows.append({"set": w, "motion": motion, "noise": noise, "runs": runs,
+                             "sequences": ", ".join(n for n, _ in seqs)})
+    return rows
+
+
+def format_static_table(rows: Sequence[dict[str, Any]]) -> str:
+    """Markdown: mean (max) 3D error in mm per column; the ratio intrinsics / ortho default (mean of
+    per-run ratios, max); and whether the default without intrinsics ends at or below its KCS stage
+    in the mean (and in how many runs)."""
+    head = ("| set | motion | noise px | runs | " + " | ".join(STATIC_COLUMNS)
+            + " | intrinsics / ortho default | pinhole default <= KCS (runs) | reproj. px (intr.) |")
+    lines = [head, "|---|---|---:|---:|" + "---:|" * (len(STATIC_COLUMNS) + 3)]
+    for r in rows:
+        runs = r["runs"]
+        cells = []
+        for c in STATIC_COLUMNS:
+            v = np.array([x[c] for x in runs]) * 1000
+            cells.append(f"{v.mean():.1f} ({v.max():.1f})")
+        ratio = np.array([x["pinhole + intrinsics"] / x["ortho default"] for x in runs])
+        d = np.array([x["pinhole default"] for x in runs])
+        k = np.array([x["pinhole KCS"] for x in runs])
+        ok = "yes" if d.mean() <= k.mean() else "**no**"
+        rp = np.array([x["reprojection px"] for x in runs])
+        lines.append(f"| {r['set']} | {r['motion']} | {r['noise']:g} | {len(runs)} | " + " | ".join(cells)
+                     + f" | {ratio.mean():.2f} ({ratio.max():.2f}) | {ok} ({int((d <= k + 1e-12).sum())}/{len(runs)})"
+                     + f" | {rp.mean():.2f} |")
+    lines.append("")
+    lines.append("3D error in mm (per-frame rigid Procrustes, mean over frames): mean over runs (max in brackets); "
+                 "every run counts in every mean and max. Static pinhole camera 3-5 m away, f 700-800 px, 640x480; "
+                 "ortho = the orthographic view of the same motion along the same camera axis at the same image scale.")
+    return "\n".join(lines)

@@ -204,6 +204,8 @@ def _reconstruction_summary(rec: Any) -> dict[str, Any]:
         "n_joints": int(poses.shape[1]),
         "joints": list(chain.joints) if chain is not None else None,
         "bone_lengths_m": _array_or_none(getattr(rec, "bone_lengths", None)),
+        "intrinsics": (rec.intrinsics.to_dict() if hasattr(getattr(rec, "intrinsics", None), "to_dict")
+                       else None),
         "timings_s": getattr(rec, "timings", {}) or {},
         "errors": errors,
         "history": history,
@@ -272,6 +274,9 @@ def _arrays(obj: Any, kind: str) -> dict[str, np.ndarray]:
     for name in names:
         value = getattr(obj, name, None)
         if value is None or name == "chain" or name in _JSON_FIELDS:
+            continue
+        if name == "intrinsics" and hasattr(value, "to_dict"):  # a PinholeCamera, kept as its JSON
+            arrays["intrinsics_json"] = np.array(json.dumps(to_jsonable(value.to_dict()), allow_nan=False))
             continue
         if name == "urdf_path" and Path(value).exists():
             value = Path(value).resolve()  # so that the result opens from any working folder
@@ -375,6 +380,11 @@ def _rebuild(kind: str, data: dict[str, np.ndarray], summary: dict, chain: Any) 
             kwargs["chain"] = chain
         elif f.name in _JSON_FIELDS:
             kwargs[f.name] = summary.get(f.name if f.name == "history" else "timings_s", {}) or {}
+        elif f.name == "intrinsics" and "intrinsics_json" in data:
+            from ..cameras.pinhole import PinholeCamera
+
+            cam = json.loads(str(data["intrinsics_json"]))
+            kwargs[f.name] = PinholeCamera.from_matrix(cam["K"], cam["dist"], cam["width"], cam["height"])
         elif f.name in data:
             kwargs[f.name] = _scalar(data[f.name])
         elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
