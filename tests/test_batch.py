@@ -179,12 +179,13 @@ def test_fps_and_intrinsics_go_only_to_stages_that_take_them(manifest, tmp_path)
     # a frame rate no stage models (a reconstruction alone) is metadata, not an error
     assert B._options(rec, {"reconstruct": not_taking}) == {"reconstruct": {}}
 
-    # and through process_recording, with this version's reconstruct
-    if "intrinsics" not in inspect.signature(cs.reconstruct).parameters:
-        rec.fps, rec.intrinsics = None, tmp_path / "K.npy"
-        with pytest.raises(cs.ChainspaceError, match="intrinsics are not supported by this version"):
-            B.process_recording(rec, tmp_path / "out")
-        assert not (tmp_path / "out" / rec.name).exists()
+    # and through process_recording: a calibration file in the intrinsics column reaches reconstruct
+    camera = cs.PinholeCamera.from_fov(1280, 720, 60.0)
+    rec.fps, rec.intrinsics = None, camera.save(tmp_path / "camera.json")
+    figures = B.process_recording(rec, tmp_path / "out")
+    assert figures["status"] == "ok", figures
+    saved = cs.load_results(tmp_path / "out" / rec.name / "reconstruction.npz")
+    assert saved.intrinsics == camera
 
 
 def test_cli_exit_codes(manifest, tmp_path):
