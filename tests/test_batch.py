@@ -157,7 +157,6 @@ def test_process_recording_is_atomic_and_refuses_foreign_folders(manifest, tmp_p
 
 
 def test_fps_and_intrinsics_go_only_to_stages_that_take_them(manifest, tmp_path):
-    import inspect
 
     rec = cs.read_manifest(manifest, strict=False)[0]
     rec.intrinsics = tmp_path / "K.npy"
