@@ -201,6 +201,9 @@ def fit_joint_angles(
     fps: float = 30.0,
     accel_std: float | None = 3.0,
     speed_decay_s: float | None = None,
+    intrinsics: Any = None,
+    image_size: tuple[float, float] | None = None,
+    _starts: list | None = None,
 ) -> JointFit:
     """Fit the robot's joint angles to a reconstruction (and its 2D tracks).
 
@@ -247,6 +250,16 @@ def fit_joint_angles(
         mirror-symmetric (most industrial arms) both are valid motions and fit equally well. The camera
         side then decides (image y axis pointing down, as pixel rows do); None: the motion nearer the
         rest pose.
+    intrinsics
+        The camera that filmed the tracks: an object with ``K`` (3, 3) and ``undistort(pixels)`` (such as
+        :class:`chainspace.cameras.lens.Intrinsics`), or a 3x3 matrix K. The tracks are undistorted and
+        the joint angles and one static camera pose (rotation, translation in metres) are fitted on the
+        perspective reprojection error (see "Perspective" in the module docstring).
+    image_size
+        (width, height) px of the images, without ``intrinsics``: the focal length is estimated too
+        (principal point at the image centre) and reported with its standard deviation; where the tracks
+        carry no measurable perspective the weak-perspective fit is kept and ``message`` says so.
+        Neither given: weak perspective only.
 
     Returns
     -------
@@ -272,6 +285,12 @@ def fit_joint_angles(
         raise DescriptionError(f"tol must be a finite number >= 0, not {tol!r}")
     if loss_scale_px is not None and not (is_real(loss_scale_px) and loss_scale_px >= 0):
         raise DescriptionError(f"loss_scale_px must be a finite number of pixels >= 0 or None, not {loss_scale_px!r}")
+    if intrinsics is not None and not hasattr(intrinsics, "K") and hasattr(intrinsics, "image_size"):
+        image_size, intrinsics = intrinsics.image_size, None  # a camera that knows its image but not its focal
+    if intrinsics is not None or image_size is not None:
+        return _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter,
+                                tol, loss_scale_px, mirror, view_from, fps, accel_std, speed_decay_s, intrinsics,
+                                image_size)
     poses, chain, urdf, tracks, confidence = _inputs(rec_or_poses, urdf, chain, tracks, confidence)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -461,10 +480,15 @@ def fit_joint_angles(
             mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
             smoothed = True
             decay_frames = np.inf if speed_decay_s is None else speed_decay_s * float(fps)
+            scored: list = []
             r, mirror_tied, it = _most_probable(robot, results, tracks, w2, _motion_prior(unseen2, mu, decay_frames),
                                                 max(sigma, px_floor), max_iter, tol, seen_from_wrong_side,
-                                                reflected_start, rebranch)
+                                                reflected_start, rebranch, scored)
             n_iter += it
+            results = [r] + [x for _, x in sorted(scored, key=lambda sx: sx[0]) if x is not r]
+        if _starts is not None:  # the winner first, then the alternatives: the perspective fit's starts
+            _starts.extend(dict(q=x["out"][0], view=x["out"][1], free=x["free"], free_prior=x["free_prior"],
+                                delta=x["delta"], gauge=x["g2"], blind=blind, px_floor=px_floor) for x in results)
         (q, view, rn, pos_base, conv2, _), best, gauge = r["out"], r["c"], r["g2"]
         converged = conv2  # the 3D stage only started this one
         residual_px = _rms_per_frame(rn, w2)
@@ -518,4 +542,96 @@ def fit_joint_angles(
         translation=t, cameras=cams, translations_2d=ts2, chain=chain, urdf_path=urdf,
         message=msg, n_iter=int(n_iter), relative=relative,
         tracks=tracks, confidence=confidence, positions_base=pos_base, input_poses=poses, timings=timings,
+    )
+
+
+def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter, tol,
+                     loss_scale_px, mirror, view_from, fps, accel_std, speed_decay_s, intrinsics,
+                     image_size) -> JointFit:
+    """fit_joint_angles with a pinhole camera (module docstring, "Perspective")."""
+    from ..cameras.lens import Intrinsics, as_intrinsics
+    from .perspective import refine_perspective
+
+    if camera != "static":
+        raise DescriptionError("a pinhole camera (intrinsics or image_size) is fitted as one static camera: use "
+                               "camera='static'")
+    if not refine:
+        raise DescriptionError("intrinsics / image_size need refine=True (the perspective fit is on the tracks)")
+    cam = as_intrinsics(intrinsics) if intrinsics is not None else None
+    if cam is None:
+        try:
+            wpx, hpx = (float(v) for v in image_size)
+        except (TypeError, ValueError):
+            raise DescriptionError(f"image_size must be (width, height) in pixels, not {image_size!r}") from None
+        if not (_positive(wpx) and _positive(hpx)):
+            raise DescriptionError(f"image_size must be positive (width, height) in pixels, not {image_size!r}")
+    t0 = time.perf_counter()
+    poses, chain, urdf, tracks, confidence = _inputs(rec_or_poses, urdf, chain, tracks, confidence)
+    if tracks is None:
+        raise DescriptionError("intrinsics / image_size need the 2D tracks (tracks=...)")
+    tracks_u = cam.undistort(tracks) if cam is not None else tracks
+    starts: list = []
+    weak = fit_joint_angles(poses, urdf, chain=chain, tracks=tracks_u, confidence=confidence, camera="static",
+                            refine=True, transform=transform, max_iter=max_iter, tol=tol, loss_scale_px=loss_scale_px,
+                            mirror=mirror, view_from=view_from, fps=fps,
+                            # known intrinsics: perspective chooses among the candidates, so the weak fit's
+                            # smoothed choice among them is skipped (the perspective fit is smoothed)
+                            accel_std=accel_std if cam is None else None,
+                            speed_decay_s=speed_decay_s, _starts=starts)
+    robot = weak.kinematics()
+    w2 = np.isfinite(tracks_u).all(-1).astype(float) * (1.0 if confidence is None else confidence)
+    weak_sse = float(np.nansum(weak.residual_px ** 2 * w2.sum(1)))
+    distinct: list = []
+    for st in starts:  # the weak fit's winner and its distinct alternatives (mirror images, flips)
+        if not any(np.abs(_wrapped(robot, st["q"] - d["q"])).max() < 0.05 for d in distinct):
+            distinct.append(st)
+    distinct = distinct[:4]
+    t1 = time.perf_counter()
+    best = refine_perspective(robot, distinct, tracks_u, w2, None if cam is None else cam.K, image_size, accel_std,
+                              fps, speed_decay_s, _unseen(robot, w2), max_iter, tol, weak_sse,
+                              accel_std is not None)
+    timings = dict(weak.timings, perspective=time.perf_counter() - t1)
+    focal = best.get("focal")
+    focal_std = best.get("focal_std")
+    if not best["measured"]:
+        weak.message += "; " + best["reason"] + ": the weak-perspective fit is reported"
+        weak.focal_px, weak.focal_std_px = focal, focal_std
+        timings["total"] = time.perf_counter() - t0
+        weak.timings = timings
+        return weak
+    view = best["view"]
+    if cam is None:
+        cam = Intrinsics(np.array([[view.f, 0, view.c[0]], [0, view.f, view.c[1]], [0, 0, 1.0]]))
+    q, pos_base = best["q"], best["pos"]
+    residual_px = _rms_per_frame(best["rn"], w2)
+    cams, ts2 = view.weak_approximation(pos_base)
+    w3 = np.isfinite(poses).all(-1).astype(float) * (1.0 if confidence is None else confidence)
+    if transform == "none":
+        s, R, t = 1.0, np.eye(3), np.zeros(3)
+    else:
+        s, R, t = similarity_align(pos_base, np.nan_to_num(poses), w3, reflection=transform == "similarity")
+        s = s if transform == "similarity" else 1.0
+    positions = s * pos_base @ R.T + t
+    residual_3d = _rms_per_frame(np.linalg.norm(positions - np.nan_to_num(poses), axis=-1), w3)
+    msg = weak.message
+    tie_note = "; the motion and its mirror image fit the data equally well (weak perspective)"
+    if tie_note in msg:
+        cut = msg.index(tie_note)
+        msg = msg[:cut]
+        if not best["settled"]:
+            msg += tie_note + ", and perspective does not tell them apart either"
+    if best["n_alternatives"]:
+        msg += ("; perspective chose among the weak-perspective fit and its mirror/flip alternatives"
+                + ("" if best["settled"] else " (within the noise: a guess)"))
+    if focal is not None:
+        msg += f"; focal length estimated: {focal:.1f} +- {focal_std:.1f} px"
+    converged = np.broadcast_to(np.asarray(best["conv"], bool), (len(q),)).copy()
+    timings["total"] = time.perf_counter() - t0
+    return JointFit(
+        q=q, joint_names=weak.joint_names, observable=weak.observable, positions=positions,
+        residual_3d=residual_3d, residual_px=residual_px, converged=converged, scale=float(s), rotation=R,
+        translation=t, cameras=cams, translations_2d=ts2, chain=chain, urdf_path=urdf, message=msg,
+        n_iter=int(weak.n_iter + best["n_iter"]), relative=weak.relative, tracks=tracks, confidence=confidence,
+        positions_base=pos_base, input_poses=poses, timings=timings, intrinsics=cam,
+        camera_pose=(view.R[0].copy(), view.t[0].copy()), focal_px=focal, focal_std_px=focal_std,
     )
