@@ -571,7 +571,9 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         raise DescriptionError("intrinsics / image_size need the 2D tracks (tracks=...)")
     tracks_u = cam.undistort(tracks) if cam is not None else tracks
     starts: list = []
-    weak = fit_joint_angles(poses, urdf, chain=chain, tracks=tracks_u, confidence=confidence, camera="static",
+    with warnings.catch_warnings():  # the weak fit only starts this one: its convergence is not the result's
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        weak = fit_joint_angles(poses, urdf, chain=chain, tracks=tracks_u, confidence=confidence, camera="static",
                             refine=True, transform=transform, max_iter=max_iter, tol=tol, loss_scale_px=loss_scale_px,
                             mirror=mirror, view_from=view_from, fps=fps,
                             # known intrinsics: perspective chooses among the candidates, so the weak fit's
@@ -579,13 +581,14 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
                             accel_std=accel_std if cam is None else None,
                             speed_decay_s=speed_decay_s, _starts=starts)
     robot = weak.kinematics()
+    weak_msg = weak.message.removeprefix("the solver stopped before it converged; ")
     w2 = np.isfinite(tracks_u).all(-1).astype(float) * (1.0 if confidence is None else confidence)
     weak_sse = float(np.nansum(weak.residual_px ** 2 * w2.sum(1)))
     distinct: list = []
     for st in starts:  # the weak fit's winner and its distinct alternatives (mirror images, flips)
         if not any(np.abs(_wrapped(robot, st["q"] - d["q"])).max() < 0.05 for d in distinct):
             distinct.append(st)
-    distinct = distinct[:4]
+    distinct = distinct[:3]
     t1 = time.perf_counter()
     best = refine_perspective(robot, distinct, tracks_u, w2, None if cam is None else cam.K, image_size, accel_std,
                               fps, speed_decay_s, _unseen(robot, w2), max_iter, tol, weak_sse,
@@ -594,6 +597,8 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     focal = best.get("focal")
     focal_std = best.get("focal_std")
     if not best["measured"]:
+        if not weak.converged.all():
+            warnings.warn(f"fit_joint_angles: {weak.message}", ConvergenceWarning, stacklevel=2)
         weak.message += "; " + best["reason"] + ": the weak-perspective fit is reported"
         weak.focal_px, weak.focal_std_px = focal, focal_std
         timings["total"] = time.perf_counter() - t0
@@ -613,7 +618,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         s = s if transform == "similarity" else 1.0
     positions = s * pos_base @ R.T + t
     residual_3d = _rms_per_frame(np.linalg.norm(positions - np.nan_to_num(poses), axis=-1), w3)
-    msg = weak.message
+    msg = weak_msg
     tie_note = "; the motion and its mirror image fit the data equally well (weak perspective)"
     if tie_note in msg:
         cut = msg.index(tie_note)
@@ -626,6 +631,9 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     if focal is not None:
         msg += f"; focal length estimated: {focal:.1f} +- {focal_std:.1f} px"
     converged = np.broadcast_to(np.asarray(best["conv"], bool), (len(q),)).copy()
+    if not converged.all():
+        msg = "the solver stopped before it converged; " + msg
+        warnings.warn(f"fit_joint_angles: {msg}", ConvergenceWarning, stacklevel=2)
     timings["total"] = time.perf_counter() - t0
     return JointFit(
         q=q, joint_names=weak.joint_names, observable=weak.observable, positions=positions,
