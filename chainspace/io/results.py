@@ -234,6 +234,9 @@ def _fit_summary(fit: Any) -> dict[str, Any]:
         "n_iter": getattr(fit, "n_iter", None),
         "message": getattr(fit, "message", ""),
         "scale": getattr(fit, "scale", None),
+        "focal_px": getattr(fit, "focal_px", None),
+        "focal_std_px": getattr(fit, "focal_std_px", None),
+        "pinhole": getattr(fit, "camera_pose", None) is not None,
         "residual_3d_mm": stats(res3, 1000.0),
         "residual_px": stats(respx, 1.0),
         "timings_s": getattr(fit, "timings", {}) or {},
@@ -247,7 +250,7 @@ _ARRAY_FIELDS = {
                        "converged", "n_iter", "message"),
     "joint_fit": ("q", "joint_names", "observable", "positions", "residual_3d", "residual_px", "converged",
                   "scale", "rotation", "translation", "cameras", "translations_2d", "urdf_path", "message",
-                  "n_iter"),
+                  "n_iter", "intrinsics_K", "camera_R", "camera_t", "focal_px", "focal_std_px"),
 }
 _JSON_FIELDS = ("history", "timings")  # dicts: kept in the summary JSON inside the NPZ
 
@@ -260,6 +263,14 @@ def _arrays(obj: Any, kind: str) -> dict[str, np.ndarray]:
     for name in names:
         value = getattr(obj, name, None)
         if value is None or name == "chain" or name in _JSON_FIELDS:
+            continue
+        if name == "intrinsics":  # a camera object: its K (and lens distortion, when it has one)
+            arrays["intrinsics_K"] = np.asarray(value.K, float)
+            if getattr(value, "dist", None) is not None:
+                arrays["intrinsics_dist"] = np.asarray(value.dist, float).reshape(-1)
+            continue
+        if name == "camera_pose":  # (R, t): x_cam = R x_base + t
+            arrays["camera_R"], arrays["camera_t"] = (np.asarray(v, float) for v in value)
             continue
         if name == "urdf_path" and Path(value).exists():
             value = Path(value).resolve()  # so that the result opens from any working folder
@@ -357,7 +368,15 @@ def _rebuild(kind: str, data: dict[str, np.ndarray], summary: dict, chain: Any) 
     except ImportError:
         return None
     kwargs: dict[str, Any] = {}
+    if "intrinsics_K" in data:
+        from ..cameras.lens import Intrinsics
+
+        kwargs["intrinsics"] = Intrinsics(data.pop("intrinsics_K"), data.pop("intrinsics_dist", None))
+    if "camera_R" in data:
+        kwargs["camera_pose"] = (data.pop("camera_R"), data.pop("camera_t"))
     for f in dataclasses.fields(cls):
+        if f.name in kwargs:
+            continue
         if f.name == "chain":
             kwargs["chain"] = chain
         elif f.name in _JSON_FIELDS:

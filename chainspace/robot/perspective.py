@@ -137,5 +137,5 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
             best["measured"] = False
             best["reason"] = (f"perspective does not fit the tracks measurably better than weak perspective "
                               f"(squared residuals {best['sse']:.4g} against {weak_sse:.4g} px^2, noise "
-                              f"variance {var:.3g} px^2)")
+                              f"variance {var:.3g} px^2: no measurable perspective)")
     return best
