@@ -78,6 +78,36 @@ variances of the best: a likelihood-ratio test), applies these rules:
   branch. Nothing in the tracks can split them there; plan paths (and camera checks) away from them,
   as :func:`chainspace.synthesize` does.
 
+Perspective (a pinhole camera)
+------------------------------
+With ``intrinsics`` (a camera with ``K`` and ``undistort``, or a 3x3 K) the tracks are undistorted and
+the weak-perspective fit above runs on them, without its smoothed choice among candidates; then one
+static pinhole camera ``u = f (R x + t)_xy / (R x + t)_z + c`` (rotation, translation in metres: the
+URDF fixes the scale) and the joint angles of every frame are fitted on the perspective reprojection
+error in pixels, with the same robust loss, confidences and acceleration prior (the view
+:class:`~chainspace.robot.views._PinholeView`; the solvers are the weak fit's). Its start: the weak
+camera's rotation, the depth of the robot's centroid ``f / s`` from the weak scale s, then the camera
+alone, per-frame IK under it, all together, and the branch of every frame chosen again under the
+pinhole camera (the Viterbi pass above).
+
+Perspective settles the depth mirror: a motion and its mirror image no longer project alike, so
+the perspective fit starts from the weak fit's winner *and* its distinct alternatives (mirror images,
+the reflection about the symmetry plane; at most three), and the lowest perspective objective wins.
+The camera-side rule (``view_from``) and the rest-pose rule then decide nothing; ``message`` says
+whether the choice was clear (the objectives more than 25 noise variances apart) or a guess. The
+joints seen only relative to frame 0, and the face-on planes of a wrist, are as above (a turn about
+the base axis is still a turn of the camera; a plane seen face-on is still tilted only to second
+order).
+
+With ``image_size`` and no intrinsics the focal length is fitted too (``log f`` a seventh camera
+parameter; principal point at the image centre; starts at 0.5, 1, 2 and 4 image widths, the camera
+alone fitted from each). Its standard deviation comes from the Gauss-Newton covariance of the camera
+with the joint angles eliminated (Schur complement, without the motion prior: an upper bound), scaled
+by the residual variance. Where the focal's standard deviation exceeds 25 % of it, or perspective
+does not beat weak perspective's squared residuals by 25 noise variances (a likelihood-ratio test),
+the tracks carry no measurable perspective (a far camera, a long lens): the weak-perspective fit is
+reported, ``message`` says so, and ``focal_px``/``focal_std_px`` hold what was estimated.
+
 Observability (the rule)
 ------------------------
 A joint is observable when moving it moves some tracked point in a way no change of camera (or, in
@@ -573,13 +603,13 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     starts: list = []
     with warnings.catch_warnings():  # the weak fit only starts this one: its convergence is not the result's
         warnings.simplefilter("ignore", ConvergenceWarning)
-        weak = fit_joint_angles(poses, urdf, chain=chain, tracks=tracks_u, confidence=confidence, camera="static",
-                            refine=True, transform=transform, max_iter=max_iter, tol=tol, loss_scale_px=loss_scale_px,
-                            mirror=mirror, view_from=view_from, fps=fps,
-                            # known intrinsics: perspective chooses among the candidates, so the weak fit's
-                            # smoothed choice among them is skipped (the perspective fit is smoothed)
-                            accel_std=accel_std if cam is None else None,
-                            speed_decay_s=speed_decay_s, _starts=starts)
+        weak = fit_joint_angles(poses, urdf, chain=chain, tracks=tracks_u, confidence=confidence,
+                                camera="static", refine=True, transform=transform, max_iter=max_iter, tol=tol,
+                                loss_scale_px=loss_scale_px, mirror=mirror, view_from=view_from, fps=fps,
+                                # known intrinsics: perspective chooses among the candidates, so the weak
+                                # fit's smoothed choice among them is skipped (the perspective fit is smoothed)
+                                accel_std=accel_std if cam is None else None,
+                                speed_decay_s=speed_decay_s, _starts=starts)
     robot = weak.kinematics()
     weak_msg = weak.message.removeprefix("the solver stopped before it converged; ")
     w2 = np.isfinite(tracks_u).all(-1).astype(float) * (1.0 if confidence is None else confidence)

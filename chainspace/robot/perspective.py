@@ -37,7 +37,12 @@ def _camera_covariance(robot: RobotKinematics, q: np.ndarray, view: _PinholeView
     nv = robot.nv
     Hq = Hqq + (~free)[:, :, None] * np.eye(nv) + 1e-12 * np.eye(nv)
     schur = Hcc[0] - np.einsum("fvc,fvd->cd", Hqc, np.linalg.solve(Hq, Hqc))
-    return sigma2 * np.linalg.pinv(schur)
+    try:  # not pinv: a direction the tracks do not fix must come out with a huge variance, not zero
+        scale = np.sqrt(np.maximum(np.diag(schur), 1e-300))
+        cov = np.linalg.inv(schur / np.outer(scale, scale)) / np.outer(scale, scale)
+    except np.linalg.LinAlgError:
+        return np.full(schur.shape, np.inf)
+    return sigma2 * cov
 
 
 def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.ndarray, w: np.ndarray,
