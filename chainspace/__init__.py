@@ -23,6 +23,7 @@ _EXPORTS: dict[str, str] = {
     "DescriptionError": "errors",
     "DescriptionNotFoundError": "errors",
     "TrackError": "errors",
+    "CameraError": "errors",
     "OutputExistsError": "errors",
     "ConvergenceWarning": "errors",
     # the chain and its descriptions
@@ -50,6 +51,8 @@ _EXPORTS: dict[str, str] = {
     "Reconstruction": "reconstruction.pipeline",
     "fit_cameras": "cameras.weak",
     "project": "cameras.weak",
+    "PinholeCamera": "cameras.pinhole",
+    "as_camera": "cameras.pinhole",
     # metrics and synthetic views
     "mpjpe": "metrics",
     "procrustes_align": "metrics",
@@ -95,6 +98,7 @@ def __dir__() -> list[str]:
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .chain import KinematicChain
     from .errors import (
+        CameraError,
         ChainspaceError,
         ConvergenceWarning,
         DescriptionError,

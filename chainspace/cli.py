@@ -167,6 +167,56 @@ class Suite(str, Enum):
 
 
 Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace existing output files.")]
+Intrinsics = Annotated[Optional[Path], typer.Option(
+    help="The camera's calibration: OpenCV .yaml/.yml/.xml (calibrateCamera's output), ROS camera_info "
+         ".yaml or .json with K and dist.")]
+Fov = Annotated[Optional[float], typer.Option(
+    help="Instead of --intrinsics: the horizontal field of view in degrees (needs --image-size).")]
+ImageSize = Annotated[Optional[tuple[float, float]], typer.Option(
+    help="Image width and height in px.")]
+
+
+def _camera_option(intrinsics: Path | None, fov: float | None,
+                   image_size: tuple[float, float] | None) -> Any:
+    """The PinholeCamera that --intrinsics FILE or --fov DEG (with --image-size W H) describe, or None.
+
+    Called before any work, so that a bad value stops the command at once (exit code 2).
+    """
+    if intrinsics is None and fov is None:
+        return None
+    from .cameras.pinhole import PinholeCamera, as_camera
+    from .errors import CameraError, DescriptionNotFoundError, is_real
+
+    if intrinsics is not None and fov is not None:
+        raise CameraError("give --intrinsics or --fov, not both")
+    size = None
+    if image_size is not None:
+        w, h = image_size
+        if not (is_real(w) and is_real(h) and w > 0 and h > 0 and w == int(w) and h == int(h)):
+            raise CameraError(f"--image-size must be two positive whole numbers of pixels, not {w:g} {h:g}")
+        size = (int(w), int(h))
+    if fov is not None:
+        if not is_real(fov) or not 0.0 < fov < 180.0:
+            raise CameraError(f"--fov must be a field of view in degrees between 0 and 180, not {fov:g}")
+        if size is None:
+            raise CameraError("--fov needs the image size: add --image-size WIDTH HEIGHT")
+        return PinholeCamera.from_fov(size[0], size[1], fov)
+    if not intrinsics.is_file():
+        raise DescriptionNotFoundError(f"{intrinsics}: no such calibration file (--intrinsics)")
+    return as_camera(intrinsics, size)
+
+
+def _intrinsics_kwargs(func: Callable[..., Any], camera: Any, what: str) -> dict[str, Any]:
+    """``{"intrinsics": camera}`` for ``func`` when a camera was given, else nothing; a clear error when
+    this version of ``func`` takes no intrinsics (perspective support lands per stage)."""
+    if camera is None:
+        return {}
+    import inspect
+
+    if "intrinsics" not in inspect.signature(func).parameters:
+        raise _fail(f"--intrinsics/--fov: {what} in this version of chainspace does not use camera "
+                    "intrinsics yet", EXIT_BAD_INPUT)
+    return {"intrinsics": camera}
 
 
 # ---------------------------------------------------------------------------------------- commands
@@ -197,7 +247,9 @@ def reconstruct(
     format: Annotated[Optional[str], typer.Option(help="Track format if not guessed: csv, npy, npz, coco, "
                                                        "openpose, mediapipe.")] = None,
     image_size: Annotated[Optional[tuple[float, float]], typer.Option(
-        help="Image width and height in px (MediaPipe landmarks are normalised).")] = None,
+        help="Image width and height in px (MediaPipe landmarks are normalised; --fov needs it).")] = None,
+    intrinsics: Intrinsics = None,
+    fov: Fov = None,
     truth: Annotated[Optional[Path], typer.Option(help="True poses (F, J, 3) m, .npy: adds the 3D error.")] = None,
     bvh: Annotated[Optional[Path], typer.Option(help="Also write the motion as BVH (human chains).")] = None,
     fps: Annotated[float, typer.Option(help="Frame rate of the tracks (BVH and viewer).")] = 30.0,
@@ -215,13 +267,15 @@ def reconstruct(
     from .io.results import save_results
     from .io.tracks import load_tracks
 
+    camera = _camera_option(intrinsics, fov, image_size)
     _check_outputs([out / f"reconstruction.{x}" for x in ("npz", "csv", "json")] + [bvh, html], overwrite)
+    intrinsics_kw = _intrinsics_kwargs(run, camera, "reconstruct")
     kc = load_chain(chain)
     W, conf, _ = load_tracks(tracks, chain=kc, format=format, image_size=image_size)
     X0 = None if init_pose is None else _load_array(init_pose, "initial pose", ("init_pose", "pose"))
     X_true = _load_poses(truth, kc)
     with _status(f"reconstructing {W.shape[0]} frames of {kc.name} ({method.value})"):
-        rec = run(W, kc, X0, method.value, confidence=conf, truth=X_true, seed=seed)
+        rec = run(W, kc, X0, method.value, confidence=conf, truth=X_true, seed=seed, **intrinsics_kw)
     for p in save_results(rec, out, overwrite=overwrite):
         _say(f"wrote {p}")
     if bvh is not None:
@@ -232,7 +286,7 @@ def reconstruct(
     if html is not None:
         from .view.viewer import write_html
 
-        _say(f"wrote {write_html(html, rec, truth=X_true, fps=fps, overwrite=overwrite)}")
+        _say(f"wrote {write_html(html, rec, truth=X_true, fps=fps, overwrite=overwrite, **_frustum(camera))}")
     typer.echo(repr(rec))
     if not rec.converged:
         raise _fail(f"the reconstruction did not converge: {rec.message}", EXIT_NOT_GOOD)
@@ -247,6 +301,9 @@ def fit(
                                                      "the one the reconstruction's chain came from.")] = None,
     out: Annotated[Path, typer.Option("--out", "-o", help="Folder for joint_angles.npz/.csv/.json.")] = Path("."),
     camera: Annotated[Camera, typer.Option(help="static (tripod) or per-frame camera.")] = Camera.static,
+    intrinsics: Intrinsics = None,
+    fov: Fov = None,
+    image_size: ImageSize = None,
     format: Annotated[Optional[str], typer.Option(help="Track format when SOURCE is tracks.")] = None,
     html: Annotated[Optional[Path], typer.Option(help="Also write a standalone HTML viewer of the fit.")] = None,
     fps: Annotated[float, typer.Option(help="Frame rate (viewer).")] = 30.0,
@@ -261,7 +318,9 @@ def fit(
     from .robot.fit import fit_joint_angles
     from .io.results import load_results, save_results
 
+    pinhole = _camera_option(intrinsics, fov, image_size)  # --camera is the static/per-frame choice
     _check_outputs([out / f"joint_angles.{x}" for x in ("npz", "csv", "json")] + [html], overwrite)
+    fit_kw = _intrinsics_kwargs(fit_joint_angles, pinhole, "fit")
     urdf_path = None if urdf is None else _urdf_path(urdf)
     if source.suffix.lower() == ".npz" and _is_result(source):
         rec = load_results(source)
@@ -276,19 +335,24 @@ def fit(
         kc = load_chain(urdf_path)
         W, conf, _ = load_tracks(source, chain=kc, format=format)
         with _status(f"reconstructing {W.shape[0]} frames of {kc.name}"):
-            rec = run(W, kc, confidence=conf)
+            rec = run(W, kc, confidence=conf, **_intrinsics_kwargs(run, pinhole, "reconstruct"))
     with _status(f"fitting joint angles to {rec.poses.shape[0]} frames"):
-        result = fit_joint_angles(rec, urdf_path, camera=camera.value)
+        result = fit_joint_angles(rec, urdf_path, camera=camera.value, **fit_kw)
     for p in save_results(result, out, overwrite=overwrite):
         _say(f"wrote {p}")
     if html is not None:
         from .view.viewer import write_html
 
-        _say(f"wrote {write_html(html, rec, fit=result, fps=fps, overwrite=overwrite)}")
+        _say(f"wrote {write_html(html, rec, fit=result, fps=fps, overwrite=overwrite, **_frustum(pinhole))}")
     typer.echo(repr(result))
     if not np.all(result.converged):
         raise _fail(f"{int(np.sum(~np.asarray(result.converged)))} frames did not converge: {result.message}",
                     EXIT_NOT_GOOD)
+
+
+def _frustum(camera: Any) -> dict[str, Any]:
+    """``{"camera": camera}`` for the viewer when the camera's image size is known (the frustum needs it)."""
+    return {} if camera is None or camera.image_size is None else {"camera": camera}
 
 
 def _urdf_path(urdf: str) -> str:
@@ -349,17 +413,26 @@ def view(
     reconstruction: Annotated[Optional[Path], typer.Option(help="With a joint fit: the reconstruction to "
                                                                 "draw over the robot.")] = None,
     fps: Annotated[float, typer.Option(help="Playback frame rate.")] = 30.0,
+    intrinsics: Intrinsics = None,
+    fov: Fov = None,
+    image_size: ImageSize = None,
     open_browser: Annotated[bool, typer.Option("--open", help="Open the live viewer in a browser.")] = False,
     overwrite: Overwrite = False,
 ) -> None:
     """Animate a result in meshcat: the skeleton (and the truth beside it), or the fitted robot.
 
     With --html, writes one HTML file that a browser opens from disk with no server or network;
-    otherwise starts a live viewer, prints its URL and runs until Ctrl-C.
+    otherwise starts a live viewer, prints its URL and runs until Ctrl-C. With --intrinsics (or --fov
+    and --image-size) the camera's frustum is drawn where the result's fitted camera puts it.
     """
     from .io.results import load_results
     from .view.viewer import show, write_html
 
+    camera = _camera_option(intrinsics, fov, image_size)
+    if camera is not None and camera.image_size is None:
+        raise _fail(f"{intrinsics}: the calibration has no image size; add --image-size WIDTH HEIGHT to "
+                    "draw the camera", EXIT_BAD_INPUT)
+    kwargs_camera = {} if camera is None else {"camera": camera}
     if html is not None:
         _check_outputs([html], overwrite)
     loaded = load_results(result)
@@ -369,9 +442,9 @@ def view(
     else:
         rec, kwargs = loaded, {"truth": _load_poses(truth, loaded.chain)}
     if html is not None:
-        _say(f"wrote {write_html(html, rec, fps=fps, overwrite=overwrite, **kwargs)}")
+        _say(f"wrote {write_html(html, rec, fps=fps, overwrite=overwrite, **kwargs, **kwargs_camera)}")
         return
-    show(rec, fps=fps, open_browser=open_browser, **kwargs)
+    show(rec, fps=fps, open_browser=open_browser, **kwargs, **kwargs_camera)
     _say("live viewer running; press Ctrl-C to stop")
     try:
         while True:

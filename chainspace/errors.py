@@ -18,6 +18,7 @@ __all__ = [
     "DescriptionError",
     "DescriptionNotFoundError",
     "TrackError",
+    "CameraError",
     "OutputExistsError",
     "ConvergenceWarning",
     "located",
@@ -39,6 +40,10 @@ class DescriptionNotFoundError(ChainspaceError, FileNotFoundError):
 
 class TrackError(ChainspaceError, ValueError):
     """2D tracks, poses or confidences that cannot be used as given."""
+
+
+class CameraError(ChainspaceError, ValueError):
+    """Camera intrinsics (values, a matrix or a calibration file) that cannot be used as given."""
 
 
 class OutputExistsError(ChainspaceError, FileExistsError):

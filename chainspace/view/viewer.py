@@ -26,12 +26,12 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import TrackError
+from ..errors import CameraError, TrackError
 from ..io.results import atomic_write
 
-__all__ = ["write_html", "show", "build_scene", "upright_poses"]
+__all__ = ["write_html", "show", "build_scene", "upright_poses", "frustum_corners"]
 
-COLORS = {"reconstruction": 0x1F77B4, "truth": 0x2CA02C, "points": 0xD62728}
+COLORS = {"reconstruction": 0x1F77B4, "truth": 0x2CA02C, "points": 0xD62728, "camera": 0x333333}
 
 
 class _Reply:
@@ -208,6 +208,60 @@ def add_robot(vis: Any, animation: Any, urdf_path: str | os.PathLike, q: np.ndar
     return model
 
 
+def frustum_corners(camera: Any, pose: Any, depth: float) -> np.ndarray:
+    """(5, 3) the camera's centre and, at ``depth`` in front of it, where the rays through the image's
+    four outer corners (top-left, top-right, bottom-right, bottom-left) reach; world units.
+
+    ``camera`` is a :class:`chainspace.cameras.pinhole.PinholeCamera` with a known image size, ``pose``
+    ``(R (3, 3), t (3,))`` maps world points into the camera frame (``x_cam = R x + t``), ``depth`` is
+    along the optical axis (z in the camera frame). Lens distortion is undone, so the rays are the
+    ones the corner pixels really see.
+    """
+    R, t = _pose(pose)
+    if not depth > 0:
+        raise CameraError(f"the frustum's depth must be positive, not {depth!r}")
+    xy = camera.rays(camera.corners())  # (4, 2) normalised x/z, y/z
+    cam = np.concatenate([np.zeros((1, 3)), np.column_stack([xy * depth, np.full(4, float(depth))])])
+    return (cam - t) @ R  # x = R^T (x_cam - t), row-wise
+
+
+def _pose(pose: Any) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        R, t = (np.asarray(a, dtype=float) for a in pose)
+    except (TypeError, ValueError):
+        raise CameraError("camera_pose must be (R (3, 3), t (3,))") from None
+    if R.shape != (3, 3) or t.shape != (3,) or not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+        raise CameraError(f"camera_pose must be a finite (R (3, 3), t (3,)), not shapes {R.shape}, {t.shape}")
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+        raise CameraError("camera_pose's R is not a rotation")
+    return R, t
+
+
+def add_frustum(vis: Any, corners: np.ndarray, *, color: int = COLORS["camera"]) -> None:
+    """Line segments from the apex to the four corners and around them, ``corners`` (5, 3) as
+    :func:`frustum_corners` gives, as the object of node ``vis``."""
+    import meshcat.geometry as g
+
+    apex, rim = corners[0], corners[1:]
+    ends = [(apex, c) for c in rim] + [(rim[i], rim[(i + 1) % 4]) for i in range(4)]
+    points = np.array([p for pair in ends for p in pair], dtype=np.float32).T  # (3, 16)
+    vis.set_object(g.LineSegments(g.PointsGeometry(points), g.LineBasicMaterial(color=color, linewidth=2)))
+
+
+def _base_positions(fit: Any, fallback: np.ndarray) -> np.ndarray:
+    positions = getattr(fit, "positions_base", None)
+    return fallback if positions is None else np.asarray(positions, dtype=float)
+
+
+def _weak_pose(camera: Any, poses: np.ndarray | None, cameras: Any, translations: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The pinhole pose of frame 0's weak-perspective camera, about the subject's middle in that frame."""
+    from ..cameras.pose import pose_from_weak
+
+    if poses is None or cameras is None or translations is None:
+        raise CameraError("drawing the camera needs camera_pose= (or a result with fitted cameras)")
+    return pose_from_weak(np.asarray(cameras)[0], np.asarray(translations)[0], camera, poses[0].mean(axis=0))
+
+
 # ---------------------------------------------------------------------------------------- staging
 def _upright(poses: np.ndarray, chain: Any, truth: np.ndarray | None, cameras: np.ndarray | None) -> np.ndarray:
     """Rotation (3, 3) turning a reconstruction's camera-centred frame Z-up."""
@@ -266,13 +320,19 @@ def _unpack(rec_or_poses: Any, chain: Any) -> tuple[np.ndarray | None, Any, np.n
 
 
 def build_scene(vis: Any, rec_or_poses: Any = None, *, chain: Any = None, truth: Any = None, fit: Any = None,
-                fps: float = 30.0) -> Any:
+                fps: float = 30.0, camera: Any = None, camera_pose: Any = None) -> Any:
     """Draw everything into meshcat visualizer ``vis`` and set the animation; return the Animation.
 
     ``rec_or_poses`` is a Reconstruction (or what :func:`chainspace.io.results.load_results` returns) or
     poses (F, J, 3) m with ``chain``. ``truth`` (F, J, 3) m is drawn beside it. ``fit`` (a JointFit)
     draws the robot from its URDF driven by ``fit.q``, with the reconstructed points (mapped into the
     robot's base frame by the fit's similarity) over it; ``truth`` is then in the base frame.
+
+    ``camera`` (a :class:`chainspace.cameras.pinhole.PinholeCamera` with its image size) draws the
+    camera's frustum (node ``chainspace/camera/frustum``) out to 0.3 of the scene's size.
+    ``camera_pose`` ``(R, t)`` maps the scene's points (the robot's base frame with a fit, else the
+    reconstruction's frame) into the camera frame, ``x_cam = R x + t``; by default it is frame 0's
+    fitted weak-perspective camera seen as a pinhole with ``camera``'s intrinsics.
     """
     from meshcat.animation import Animation
 
@@ -288,6 +348,12 @@ def build_scene(vis: Any, rec_or_poses: Any = None, *, chain: Any = None, truth:
     truth = None if truth is None else _check_poses(truth, None, "truth poses")
     animation = Animation(default_framerate=fps)
     scene = vis["chainspace"]
+    if camera is not None:
+        from ..cameras.pinhole import as_camera
+
+        camera = as_camera(camera)
+        if camera.image_size is None:
+            raise CameraError("drawing the camera needs its image size (width, height)")
 
     if fit is not None:
         add_robot(scene, animation, fit.urdf_path, fit.q, fps=fps)
@@ -310,13 +376,26 @@ def build_scene(vis: Any, rec_or_poses: Any = None, *, chain: Any = None, truth:
             add_skeleton(scene["truth"], animation, truth + shift, chain, color=COLORS["truth"],
                          radius=0.012 * size, fps=fps)
         shown = base.reshape(-1, 3) if truth is None else np.concatenate([base, truth + shift]).reshape(-1, 3)
+        if camera is not None:
+            pose = camera_pose if camera_pose is not None else \
+                _weak_pose(camera, _base_positions(fit, base), getattr(fit, "cameras", None),
+                           getattr(fit, "translations_2d", None))
+            add_frustum(scene["camera"]["frustum"], frustum_corners(camera, pose, 0.3 * size))
     else:
         if truth is not None and truth.shape != poses.shape:
             raise TrackError(f"truth has shape {truth.shape}, the poses {poses.shape}")
         root = chain.joint_index(chain.root)
         R = _upright(poses, chain, truth, cameras)
-        shown = _stand(poses @ R.T, root)
+        turned = poses @ R.T
+        shown = _stand(turned, root)
         size = _extent(shown)
+        if camera is not None:
+            pose = camera_pose if camera_pose is not None else \
+                _weak_pose(camera, poses, cameras, getattr(rec_or_poses, "translations", None))
+            # the skeleton is turned upright and re-centred every frame; the camera moves with it
+            node = scene["camera"]
+            add_frustum(node["frustum"], frustum_corners(camera, pose, 0.3 * size) @ R.T)
+            _clip(animation, node, fps, position=("vector3", (shown - turned)[:, 0]))
         add_skeleton(scene["reconstruction"], animation, shown, chain, color=COLORS["reconstruction"],
                      radius=0.02 * size, fps=fps)
         if truth is not None:
@@ -360,7 +439,8 @@ def _frame_camera(vis: Any, points: np.ndarray) -> None:
 
 # ---------------------------------------------------------------------------------------- entry points
 def write_html(path: str | os.PathLike, rec_or_poses: Any = None, *, chain: Any = None, truth: Any = None,
-               fit: Any = None, fps: float = 30.0, overwrite: bool = False) -> Path:
+               fit: Any = None, fps: float = 30.0, overwrite: bool = False, camera: Any = None,
+               camera_pose: Any = None) -> Path:
     """Write one standalone HTML file animating the motion (see :func:`build_scene` for the inputs).
 
     The file holds meshcat's JavaScript and the scene; a browser opens it from disk with no server and
@@ -370,7 +450,8 @@ def write_html(path: str | os.PathLike, rec_or_poses: Any = None, *, chain: Any 
 
     check_writable([path], overwrite)
     vis = _offline_visualizer()
-    build_scene(vis, rec_or_poses, chain=chain, truth=truth, fit=fit, fps=fps)
+    build_scene(vis, rec_or_poses, chain=chain, truth=truth, fit=fit, fps=fps, camera=camera,
+                camera_pose=camera_pose)
     html = vis.static_html()
     with atomic_write(path, "w", overwrite) as f:
         f.write(html)
@@ -378,7 +459,8 @@ def write_html(path: str | os.PathLike, rec_or_poses: Any = None, *, chain: Any 
 
 
 def show(rec_or_poses: Any = None, *, chain: Any = None, truth: Any = None, fit: Any = None, fps: float = 30.0,
-         open_browser: bool = False, zmq_url: str | None = None) -> Any:
+         open_browser: bool = False, zmq_url: str | None = None, camera: Any = None,
+         camera_pose: Any = None) -> Any:
     """Show the motion in a live meshcat viewer (starts a meshcat server); return the Visualizer.
 
     Prints the viewer's URL; ``open_browser=True`` also opens it. The server lives as long as the
@@ -386,7 +468,8 @@ def show(rec_or_poses: Any = None, *, chain: Any = None, truth: Any = None, fit:
     """
     vis = _import_meshcat().Visualizer(zmq_url)
     vis.delete()
-    build_scene(vis, rec_or_poses, chain=chain, truth=truth, fit=fit, fps=fps)
+    build_scene(vis, rec_or_poses, chain=chain, truth=truth, fit=fit, fps=fps, camera=camera,
+                camera_pose=camera_pose)
     if open_browser:
         vis.open()
     return vis
