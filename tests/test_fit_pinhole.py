@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 import chainspace
-from chainspace.cameras.lens import Intrinsics
 from chainspace.io.results import load_results, save_results
 from chainspace.robot.fit import fit_joint_angles
 from chainspace.robot.kinematics import RobotKinematics
@@ -118,3 +117,25 @@ def test_far_camera_no_measurable_perspective(arm):
     assert "no measurable perspective" in fit.message, fit.message
     assert fit.camera_pose is None and fit.intrinsics is None
     assert _worst_deg(fit, tr) < 5.0
+
+
+def test_save_load_pinhole_fields_without_fitting(arm, tmp_path):
+    from chainspace.cameras.pinhole import PinholeCamera
+    from chainspace.robot.result import JointFit
+
+    F, J = 3, arm.n_joints
+    rng = np.random.default_rng(0)
+    cam = PinholeCamera(1450.0, 1440.0, 960.0, 540.0, (-0.1, 0.01, 0.0, 0.0, 0.0), 1920, 1080)
+    fit = JointFit(q=np.zeros((F, 6)), joint_names=list("abcdef"), observable=np.ones(6, bool),
+                   positions=rng.random((F, J, 3)), residual_3d=np.zeros(F), residual_px=np.zeros(F),
+                   converged=np.ones(F, bool), scale=1.0, rotation=np.eye(3), translation=np.zeros(3),
+                   cameras=np.zeros((F, 2, 3)), translations_2d=np.zeros((F, 2)), chain=arm,
+                   urdf_path=arm.metadata["urdf_path"], message="m", n_iter=1, positions_base=rng.random((F, J, 3)),
+                   intrinsics=cam, camera_pose=(np.eye(3), np.array([0.1, 0.0, 5.0])), focal_px=1450.0,
+                   focal_std_px=2.0)
+    paths = save_results(fit, tmp_path / "fit")
+    back = load_results([p for p in paths if str(p).endswith(".npz")][0])
+    assert back.intrinsics == cam
+    assert np.allclose(back.camera_pose[1], [0.1, 0.0, 5.0]) and np.allclose(back.camera_pose[0], np.eye(3))
+    assert back.focal_px == 1450.0 and back.focal_std_px == 2.0
+    assert np.allclose(back.reprojected(), fit.reprojected())

@@ -268,6 +268,8 @@ def _arrays(obj: Any, kind: str) -> dict[str, np.ndarray]:
             arrays["intrinsics_K"] = np.asarray(value.K, float)
             if getattr(value, "dist", None) is not None:
                 arrays["intrinsics_dist"] = np.asarray(value.dist, float).reshape(-1)
+            if getattr(value, "image_size", None) is not None:
+                arrays["intrinsics_size"] = np.asarray(value.image_size, int)
             continue
         if name == "camera_pose":  # (R, t): x_cam = R x_base + t
             arrays["camera_R"], arrays["camera_t"] = (np.asarray(v, float) for v in value)
@@ -369,9 +371,11 @@ def _rebuild(kind: str, data: dict[str, np.ndarray], summary: dict, chain: Any) 
         return None
     kwargs: dict[str, Any] = {}
     if "intrinsics_K" in data:
-        from ..cameras.lens import Intrinsics
+        from ..cameras.pinhole import PinholeCamera
 
-        kwargs["intrinsics"] = Intrinsics(data.pop("intrinsics_K"), data.pop("intrinsics_dist", None))
+        size = data.pop("intrinsics_size", None)
+        kwargs["intrinsics"] = PinholeCamera.from_matrix(data.pop("intrinsics_K"), data.pop("intrinsics_dist", None),
+                                                         *([None, None] if size is None else size.tolist()))
     if "camera_R" in data:
         kwargs["camera_pose"] = (data.pop("camera_R"), data.pop("camera_t"))
     for f in dataclasses.fields(cls):

@@ -282,7 +282,7 @@ def fit_joint_angles(
         rest pose.
     intrinsics
         The camera that filmed the tracks: an object with ``K`` (3, 3) and ``undistort(pixels)`` (such as
-        :class:`chainspace.cameras.lens.Intrinsics`), or a 3x3 matrix K. The tracks are undistorted and
+        :class:`chainspace.cameras.PinholeCamera`), a 3x3 matrix K or a calibration file. The tracks are undistorted and
         the joint angles and one static camera pose (rotation, translation in metres) are fitted on the
         perspective reprojection error (see "Perspective" in the module docstring).
     image_size
@@ -579,7 +579,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
                      loss_scale_px, mirror, view_from, fps, accel_std, speed_decay_s, intrinsics,
                      image_size) -> JointFit:
     """fit_joint_angles with a pinhole camera (module docstring, "Perspective")."""
-    from ..cameras.lens import Intrinsics, as_intrinsics
+    from ..cameras.pinhole import PinholeCamera, as_camera
     from .perspective import refine_perspective
 
     if camera != "static":
@@ -587,7 +587,12 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
                                "camera='static'")
     if not refine:
         raise DescriptionError("intrinsics / image_size need refine=True (the perspective fit is on the tracks)")
-    cam = as_intrinsics(intrinsics) if intrinsics is not None else None
+    if intrinsics is None:
+        cam = None
+    elif hasattr(intrinsics, "K") and hasattr(intrinsics, "undistort"):
+        cam = intrinsics  # a PinholeCamera, or any camera of the same duck type
+    else:
+        cam = as_camera(intrinsics)  # a 3x3 matrix or a calibration file
     if cam is None:
         try:
             wpx, hpx = (float(v) for v in image_size)
@@ -636,7 +641,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         return weak
     view = best["view"]
     if cam is None:
-        cam = Intrinsics(np.array([[view.f, 0, view.c[0]], [0, view.f, view.c[1]], [0, 0, 1.0]]))
+        cam = PinholeCamera(view.f, view.f, view.c[0], view.c[1], None, *(int(v) for v in image_size))
     q, pos_base = best["q"], best["pos"]
     residual_px = _rms_per_frame(best["rn"], w2)
     cams, ts2 = view.weak_approximation(pos_base)

@@ -71,8 +71,8 @@ class JointFit:
         if self.intrinsics is not None and self.camera_pose is not None:
             R, t = self.camera_pose
             y = self.positions_base @ np.asarray(R).T + np.asarray(t)
-            if hasattr(self.intrinsics, "project") and hasattr(self.intrinsics, "dist"):
-                return self.intrinsics.project(y)  # lens distortion included
+            if hasattr(self.intrinsics, "project"):
+                return self.intrinsics.project(y)  # a PinholeCamera: lens distortion included
             K = np.asarray(self.intrinsics.K, float)
             return (y[..., :2] / y[..., 2:]) @ K[:2, :2].T + K[:2, 2]
         if self.cameras is None:

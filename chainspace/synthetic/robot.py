@@ -291,7 +291,8 @@ def synthesize(
         None) from the centre of the trajectory's points, looking at it from a random azimuth and the
         elevation above (``elevation_deg`` < 0: below the base plane). ``"weak"`` is ``"static"``.
     image_size, focal_px, dist
-        Pinhole filming: image (width, height) px (principal point at its centre unless K gives one);
+        Pinhole filming (:class:`chainspace.cameras.PinholeCamera` projects, distortion included): image
+        (width, height) px (principal point at its centre unless K gives one; a camera's own size wins);
         focal length px (random in 0.8-1.2 x the width when None); lens distortion (k1, k2, p1, p2, k3)
         applied to the tracks (OpenCV's model). ``image_height_px`` is ignored (the distance sets the size).
     seed
@@ -317,9 +318,9 @@ def synthesize(
     if isinstance(camera, str) and camera == "weak":
         camera = "static"
     if not isinstance(camera, str):
-        from ..cameras.lens import as_intrinsics
+        from ..cameras.pinhole import as_camera
 
-        pinhole_cam = as_intrinsics(camera)
+        pinhole_cam = as_camera(camera)
         camera = "pinhole"
     if camera not in ("static", "moving", "pinhole"):
         raise DescriptionError(f"camera must be 'static', 'weak', 'moving', 'pinhole' or a camera (K), not {camera!r}")
@@ -370,7 +371,7 @@ def synthesize(
 def _film_pinhole(chain, robot, q, positions, rng, elev, cam_seed, cam, distance_reaches, image_size, focal_px,
                   dist, noise_px, drop, fps, trajectory) -> RobotTrial:
     """One static pinhole camera looking at the centre of the trajectory's points (see synthesize)."""
-    from ..cameras.lens import Intrinsics
+    from ..cameras.pinhole import PinholeCamera
     from .views import look_rotation
 
     w, h = (float(v) for v in image_size)
@@ -378,9 +379,11 @@ def _film_pinhole(chain, robot, q, positions, rng, elev, cam_seed, cam, distance
     d = rng.uniform(1.5, 3.0) if distance_reaches is None else float(distance_reaches)
     f = (rng.uniform(0.8, 1.2) * w if focal_px is None else float(focal_px))
     if cam is None:
-        cam = Intrinsics(np.array([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1.0]]), dist)
-    elif dist is not None:
-        cam = Intrinsics(cam.K, dist)
+        cam = PinholeCamera(f, f, w / 2, h / 2, dist, int(w), int(h))
+    else:
+        if cam.image_size is not None:
+            w, h = (float(v) for v in cam.image_size)
+        cam = PinholeCamera(cam.fx, cam.fy, cam.cx, cam.cy, cam.dist if dist is None else dist, int(w), int(h))
     az = np.random.default_rng(cam_seed).uniform(0, 2 * np.pi)
     R = look_rotation(az, np.deg2rad(elev))
     target = positions.reshape(-1, 3).mean(0)
