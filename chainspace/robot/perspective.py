@@ -62,7 +62,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     if fit_focal:
         wpx, hpx = (float(v) for v in image_size)
         c = np.array([wpx / 2, hpx / 2])
-        f_inits = [wpx * k for k in (0.5, 1.0, 2.0, 4.0)]
+        f_inits = [wpx * k for k in (0.5, 0.7, 1.0, 1.4, 2.0, 4.0)]
         aspect = 1.0
     else:
         K = np.asarray(K, float)
@@ -75,21 +75,31 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     F = len(tracks)
     n_obs = 2 * int((w > 0).sum())
     fits = []
+    chosen_f = None
     for st in starts:
         q0 = st["q"]
         pos0 = robot.positions(q0)
         delta = st["delta"]
         none_free = np.zeros_like(st["free"])
+        ones_k, n_iter = np.ones(6, bool), 0
         best_cam = None
-        for f0 in f_inits:  # camera alone first (q held): cheap, and picks the focal's basin
-            pv = _pinhole_from_weak(st["view"], pos0, f0, c, fit_focal)
-            out = _sequence_lm(robot, q0, tr, w, pv, none_free, np.ones(pv.n_params, bool), 30, 1e-10, delta)
-            cost = float((w * _huber(out[2], delta)[0]).sum())
+        for f0 in (f_inits if fit_focal and chosen_f is None else [chosen_f or f_inits[0]]):
+            # per focal: the camera alone, then per-frame IK under it, alternated (the focal held); the
+            # weak start's motion can be far off under perspective, so the focal is chosen after the IK
+            pv = _pinhole_from_weak(st["view"], pos0, f0, c, False)
+            pv = _sequence_lm(robot, q0, tr, w, pv, none_free, ones_k, 30, 1e-10, delta)[1]
+            q = q0
+            for _ in range(3 if fit_focal else 0):
+                q, _, _, _, _, it = _sequence_lm(robot, q, tr, w, pv, st["free"], ~ones_k, 10, 1e-8, None)
+                pv = _sequence_lm(robot, q, tr, w, pv, none_free, ones_k, 10, 1e-10, delta)[1]
+                n_iter += it
+            cost = _robust(np.linalg.norm(pv.apply(robot.positions(q))[0] - np.nan_to_num(tr), axis=-1), w, delta)
             if best_cam is None or cost < best_cam[0]:
-                best_cam = (cost, out[1])
-        pv = best_cam[1]
-        ones, n_iter = np.ones(pv.n_params, bool), 0
-        q = q0
+                best_cam = (cost, pv, q, f0)
+        _, pv, q, f0 = best_cam
+        chosen_f = chosen_f or (f0 if fit_focal else None)  # the other starts reuse the winner's focal
+        pv = _PinholeView(pv.R, pv.t, pv.f, pv.c, pv.cam_of, fit_focal)
+        ones = np.ones(pv.n_params, bool)
         for _ in range(3):  # per-frame IK under the camera, alternated with the camera alone
             q, _, _, _, _, it = _sequence_lm(robot, q, tr, w, pv, st["free"], ~ones, 10, 1e-8, None)
             pv = _sequence_lm(robot, q, tr, w, pv, none_free, ones, 10, 1e-10, delta)[1]
