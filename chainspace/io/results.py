@@ -244,6 +244,9 @@ def _fit_summary(fit: Any) -> dict[str, Any]:
         # the robot's metres, so the _mm field holds millimetres on the robot
         "residual_3d_mm": stats(res3, 1000.0 / scale) if scale else None,
         "residual_3d_reconstruction_units": stats(res3, 1.0),
+        "focal_px": getattr(fit, "focal_px", None),
+        "focal_std_px": getattr(fit, "focal_std_px", None),
+        "pinhole": getattr(fit, "camera_pose", None) is not None,
         "residual_px": stats(respx, 1.0),
         "relative_to_frame_0": [n for n, r in zip(fit.joint_names, relative, strict=False) if r],
         "timings_s": getattr(fit, "timings", {}) or {},
@@ -261,7 +264,7 @@ _ARRAY_FIELDS = {
                        "converged", "n_iter", "message"),
     "joint_fit": ("q", "joint_names", "observable", "positions", "residual_3d", "residual_px", "converged",
                   "scale", "rotation", "translation", "cameras", "translations_2d", "urdf_path", "message",
-                  "n_iter"),
+                  "n_iter", "intrinsics", "camera_pose", "focal_px", "focal_std_px"),
 }
 _JSON_FIELDS = ("history", "timings")  # dicts: kept in the summary JSON inside the NPZ
 
@@ -275,8 +278,11 @@ def _arrays(obj: Any, kind: str) -> dict[str, np.ndarray]:
         value = getattr(obj, name, None)
         if value is None or name == "chain" or name in _JSON_FIELDS:
             continue
-        if name == "intrinsics" and hasattr(value, "to_dict"):  # a PinholeCamera, kept as its JSON
+        if name == "intrinsics":  # a PinholeCamera, kept as its JSON
             arrays["intrinsics_json"] = np.array(json.dumps(to_jsonable(value.to_dict()), allow_nan=False))
+            continue
+        if name == "camera_pose":  # (R, t): x_cam = R x_base + t
+            arrays["camera_R"], arrays["camera_t"] = (np.asarray(v, float) for v in value)
             continue
         if name == "urdf_path" and Path(value).exists():
             value = Path(value).resolve()  # so that the result opens from any working folder
@@ -375,7 +381,11 @@ def _rebuild(kind: str, data: dict[str, np.ndarray], summary: dict, chain: Any) 
     except ImportError:
         return None
     kwargs: dict[str, Any] = {}
+    if "camera_R" in data:
+        kwargs["camera_pose"] = (data.pop("camera_R"), data.pop("camera_t"))
     for f in dataclasses.fields(cls):
+        if f.name in kwargs:
+            continue
         if f.name == "chain":
             kwargs["chain"] = chain
         elif f.name in _JSON_FIELDS:

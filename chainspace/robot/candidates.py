@@ -38,7 +38,7 @@ def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray,
     q0 = np.concatenate(starts)
     idx = np.tile(np.arange(F), K)
     qs, _, rn, _, _, _ = _sequence_lm(robot, q0, target[idx], w[idx], view.take(idx), free[idx],
-                                      np.zeros(4 + target.shape[-1], bool), 30, 1e-8, None)
+                                      np.zeros(view.n_params, bool), 30, 1e-8, None)
     qs = qs.reshape(K, F, nq)
     data = (w[idx] * rn ** 2).sum(1).reshape(K, F) / max(sigma, 1e-12) ** 2
     data += 0.05 * np.abs(_wrapped(robot, qs - robot.q_rest)).sum(-1)
@@ -86,7 +86,7 @@ def _across_long_gaps(robot: RobotKinematics, q: np.ndarray, tracks: np.ndarray,
         idx = np.full(n_random + 1, b)
         q0 = np.where(_held_q(robot, free[b]), q[b], np.vstack([q[b], _random_q(robot, rng, n_random)]))
         qs, _, rn, _, _, _ = _sequence_lm(robot, q0, tracks[idx], w[idx], view.take(idx), free[idx],
-                                          np.zeros(4 + tracks.shape[-1], bool), 30, 1e-8, None)
+                                          np.zeros(view.n_params, bool), 30, 1e-8, None)
         sse = (w[b] * rn ** 2).sum(1)
         kept: list[np.ndarray] = []
         for k in np.argsort(sse):
@@ -127,6 +127,10 @@ def _viterbi_reanchored(robot: RobotKinematics, q: np.ndarray, tracks: np.ndarra
     if np.abs(_wrapped(robot, q_fix[0] - q[0])[_gauge_q(robot, gauge)]).max(initial=0.0) < 1e-9:
         return q_fix, view
     q_fix, _ = _hold(robot, q_fix, blind, gauge, False)
+    if not isinstance(view, _View):  # a pinhole camera: re-fitted by Levenberg-Marquardt, the motion held
+        out = _sequence_lm(robot, q_fix, tracks, w, view, np.zeros_like(free), np.ones(view.n_params, bool), 30,
+                           1e-10, None)
+        return q_fix, out[1]
     return q_fix, _camera_view(robot.positions(q_fix), tracks, w, False)
 
 

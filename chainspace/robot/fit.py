@@ -78,6 +78,36 @@ variances of the best: a likelihood-ratio test), applies these rules:
   branch. Nothing in the tracks can split them there; plan paths (and camera checks) away from them,
   as :func:`chainspace.synthesize` does.
 
+Perspective (a pinhole camera)
+------------------------------
+With ``intrinsics`` (a camera with ``K`` and ``undistort``, or a 3x3 K) the tracks are undistorted and
+the weak-perspective fit above runs on them, without its smoothed choice among candidates; then one
+static pinhole camera ``u = f (R x + t)_xy / (R x + t)_z + c`` (rotation, translation in metres: the
+URDF fixes the scale) and the joint angles of every frame are fitted on the perspective reprojection
+error in pixels, with the same robust loss, confidences and acceleration prior (the view
+:class:`~chainspace.robot.views._PinholeView`; the solvers are the weak fit's). Its start: the weak
+camera's rotation, the depth of the robot's centroid ``f / s`` from the weak scale s, then the camera
+alone, per-frame IK under it, all together, and the branch of every frame chosen again under the
+pinhole camera (the Viterbi pass above).
+
+Perspective settles the depth mirror: a motion and its mirror image no longer project alike, so
+the perspective fit starts from the weak fit's winner *and* its distinct alternatives (mirror images,
+the reflection about the symmetry plane; at most three), and the lowest perspective objective wins.
+The camera-side rule (``view_from``) and the rest-pose rule then decide nothing; ``message`` says
+whether the choice was clear (the objectives more than 25 noise variances apart) or a guess. The
+joints seen only relative to frame 0, and the face-on planes of a wrist, are as above (a turn about
+the base axis is still a turn of the camera; a plane seen face-on is still tilted only to second
+order).
+
+With ``image_size`` and no intrinsics the focal length is fitted too (``log f`` a seventh camera
+parameter; principal point at the image centre; starts at 0.5, 1, 2 and 4 image widths, the camera
+alone fitted from each). Its standard deviation comes from the Gauss-Newton covariance of the camera
+with the joint angles eliminated (Schur complement, without the motion prior: an upper bound), scaled
+by the residual variance. Where the focal's standard deviation exceeds 25 % of it, or perspective
+does not beat weak perspective's squared residuals by 25 noise variances (a likelihood-ratio test),
+the tracks carry no measurable perspective (a far camera, a long lens): the weak-perspective fit is
+reported, ``message`` says so, and ``focal_px``/``focal_std_px`` hold what was estimated.
+
 Observability (the rule)
 ------------------------
 A joint is observable when moving it moves some tracked point in a way no change of camera (or, in
@@ -206,6 +236,9 @@ def fit_joint_angles(
     fps: float = 30.0,
     accel_std: float | None = 3.0,
     speed_decay_s: float | None = None,
+    intrinsics: Any = None,
+    image_size: tuple[float, float] | None = None,
+    _starts: list | None = None,
 ) -> JointFit:
     """Fit the robot's joint angles to a reconstruction (and its 2D tracks).
 
@@ -252,6 +285,16 @@ def fit_joint_angles(
         mirror-symmetric (most industrial arms) both are valid motions and fit equally well. The camera
         side then decides (image y axis pointing down, as pixel rows do); None: the motion nearer the
         rest pose.
+    intrinsics
+        The camera that filmed the tracks: an object with ``K`` (3, 3) and ``undistort(pixels)`` (such as
+        :class:`chainspace.cameras.PinholeCamera`), a 3x3 matrix K or a calibration file. The tracks are undistorted and
+        the joint angles and one static camera pose (rotation, translation in metres) are fitted on the
+        perspective reprojection error (see "Perspective" in the module docstring).
+    image_size
+        (width, height) px of the images, without ``intrinsics``: the focal length is estimated too
+        (principal point at the image centre) and reported with its standard deviation; where the tracks
+        carry no measurable perspective the weak-perspective fit is kept and ``message`` says so.
+        Neither given: weak perspective only.
 
     Returns
     -------
@@ -277,6 +320,12 @@ def fit_joint_angles(
         raise DescriptionError(f"tol must be a finite number >= 0, not {tol!r}")
     if loss_scale_px is not None and not (is_real(loss_scale_px) and loss_scale_px >= 0):
         raise DescriptionError(f"loss_scale_px must be a finite number of pixels >= 0 or None, not {loss_scale_px!r}")
+    if intrinsics is not None and not hasattr(intrinsics, "K") and hasattr(intrinsics, "image_size"):
+        image_size, intrinsics = intrinsics.image_size, None  # a camera that knows its image but not its focal
+    if intrinsics is not None or image_size is not None:
+        return _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter,
+                                tol, loss_scale_px, mirror, view_from, fps, accel_std, speed_decay_s, intrinsics,
+                                image_size)
     poses, chain, urdf, tracks, confidence = _inputs(rec_or_poses, urdf, chain, tracks, confidence)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -466,10 +515,15 @@ def fit_joint_angles(
             mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
             smoothed = True
             decay_frames = np.inf if speed_decay_s is None else speed_decay_s * float(fps)
+            scored: list = []
             r, mirror_tied, it = _most_probable(robot, results, tracks, w2, _motion_prior(unseen2, mu, decay_frames),
                                                 max(sigma, px_floor), max_iter, tol, seen_from_wrong_side,
-                                                reflected_start, rebranch)
+                                                reflected_start, rebranch, scored)
             n_iter += it
+            results = [r] + [x for _, x in sorted(scored, key=lambda sx: sx[0]) if x is not r]
+        if _starts is not None:  # the winner first, then the alternatives: the perspective fit's starts
+            _starts.extend(dict(q=x["out"][0], view=x["out"][1], free=x["free"], free_prior=x["free_prior"],
+                                delta=x["delta"], gauge=x["g2"], blind=blind, px_floor=px_floor) for x in results)
         (q, view, rn, pos_base, conv2, _), best, gauge = r["out"], r["c"], r["g2"]
         converged = conv2  # the 3D stage only started this one
         residual_px = _rms_per_frame(rn, w2)
@@ -519,4 +573,109 @@ def fit_joint_angles(
         translation=t, cameras=cams, translations_2d=ts2, chain=chain, urdf_path=urdf,
         message=msg, n_iter=int(n_iter), relative=relative,
         tracks=tracks, confidence=confidence, positions_base=pos_base, input_poses=poses, timings=timings,
+    )
+
+
+def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter, tol,
+                     loss_scale_px, mirror, view_from, fps, accel_std, speed_decay_s, intrinsics,
+                     image_size) -> JointFit:
+    """fit_joint_angles with a pinhole camera (module docstring, "Perspective")."""
+    from ..cameras.pinhole import PinholeCamera, as_camera
+    from .perspective import refine_perspective
+
+    if camera != "static":
+        raise DescriptionError("a pinhole camera (intrinsics or image_size) is fitted as one static camera: use "
+                               "camera='static'")
+    if not refine:
+        raise DescriptionError("intrinsics / image_size need refine=True (the perspective fit is on the tracks)")
+    if intrinsics is None:
+        cam = None
+    elif hasattr(intrinsics, "K") and hasattr(intrinsics, "undistort"):
+        cam = intrinsics  # a PinholeCamera, or any camera of the same duck type
+    else:
+        cam = as_camera(intrinsics)  # a 3x3 matrix or a calibration file
+    if cam is None:
+        try:
+            wpx, hpx = (float(v) for v in image_size)
+        except (TypeError, ValueError):
+            raise DescriptionError(f"image_size must be (width, height) in pixels, not {image_size!r}") from None
+        if not (_positive(wpx) and _positive(hpx)):
+            raise DescriptionError(f"image_size must be positive (width, height) in pixels, not {image_size!r}")
+    t0 = time.perf_counter()
+    poses, chain, urdf, tracks, confidence = _inputs(rec_or_poses, urdf, chain, tracks, confidence)
+    if tracks is None:
+        raise DescriptionError("intrinsics / image_size need the 2D tracks (tracks=...)")
+    tracks_u = cam.undistort(tracks) if cam is not None else tracks
+    starts: list = []
+    with warnings.catch_warnings():  # the weak fit only starts this one: its convergence is not the result's
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        weak = fit_joint_angles(poses, urdf, chain=chain, tracks=tracks_u, confidence=confidence,
+                                camera="static", refine=True, transform=transform, max_iter=max_iter, tol=tol,
+                                loss_scale_px=loss_scale_px, mirror=mirror, view_from=view_from, fps=fps,
+                                # known intrinsics: perspective chooses among the candidates, so the weak
+                                # fit's smoothed choice among them is skipped (the perspective fit is smoothed)
+                                accel_std=accel_std if cam is None else None,
+                                speed_decay_s=speed_decay_s, _starts=starts)
+    robot = weak.kinematics()
+    weak_msg = weak.message.removeprefix("the solver stopped before it converged; ")
+    w2 = np.isfinite(tracks_u).all(-1).astype(float) * (1.0 if confidence is None else confidence)
+    weak_sse = float(np.nansum(weak.residual_px ** 2 * w2.sum(1)))
+    distinct: list = []
+    for st in starts:  # the weak fit's winner and its distinct alternatives (mirror images, flips)
+        if not any(np.abs(_wrapped(robot, st["q"] - d["q"])).max() < 0.05 for d in distinct):
+            distinct.append(st)
+    distinct = distinct[:3]
+    t1 = time.perf_counter()
+    best = refine_perspective(robot, distinct, tracks_u, w2, None if cam is None else cam.K, image_size, accel_std,
+                              fps, speed_decay_s, _unseen(robot, w2), max_iter, tol, weak_sse,
+                              accel_std is not None)
+    timings = dict(weak.timings, perspective=time.perf_counter() - t1)
+    focal = best.get("focal")
+    focal_std = best.get("focal_std")
+    if not best["measured"]:
+        if not weak.converged.all():
+            warnings.warn(f"fit_joint_angles: {weak.message}", ConvergenceWarning, stacklevel=2)
+        weak.message += "; " + best["reason"] + ": the weak-perspective fit is reported"
+        weak.focal_px, weak.focal_std_px = focal, focal_std
+        timings["total"] = time.perf_counter() - t0
+        weak.timings = timings
+        return weak
+    view = best["view"]
+    if cam is None:
+        cam = PinholeCamera(view.f, view.f, view.c[0], view.c[1], None, *(int(v) for v in image_size))
+    q, pos_base = best["q"], best["pos"]
+    residual_px = _rms_per_frame(best["rn"], w2)
+    cams, ts2 = view.weak_approximation(pos_base)
+    w3 = np.isfinite(poses).all(-1).astype(float) * (1.0 if confidence is None else confidence)
+    if transform == "none":
+        s, R, t = 1.0, np.eye(3), np.zeros(3)
+    else:
+        s, R, t = similarity_align(pos_base, np.nan_to_num(poses), w3, reflection=transform == "similarity")
+        s = s if transform == "similarity" else 1.0
+    positions = s * pos_base @ R.T + t
+    residual_3d = _rms_per_frame(np.linalg.norm(positions - np.nan_to_num(poses), axis=-1), w3)
+    msg = weak_msg
+    tie_note = "; the motion and its mirror image fit the data equally well (weak perspective)"
+    if tie_note in msg:
+        cut = msg.index(tie_note)
+        msg = msg[:cut]
+        if not best["settled"]:
+            msg += tie_note + ", and perspective does not tell them apart either"
+    if best["n_alternatives"]:
+        msg += ("; perspective chose among the weak-perspective fit and its mirror/flip alternatives"
+                + ("" if best["settled"] else " (within the noise: a guess)"))
+    if focal is not None:
+        msg += f"; focal length estimated: {focal:.1f} +- {focal_std:.1f} px"
+    converged = np.broadcast_to(np.asarray(best["conv"], bool), (len(q),)).copy()
+    if not converged.all():
+        msg = "the solver stopped before it converged; " + msg
+        warnings.warn(f"fit_joint_angles: {msg}", ConvergenceWarning, stacklevel=2)
+    timings["total"] = time.perf_counter() - t0
+    return JointFit(
+        q=q, joint_names=weak.joint_names, observable=weak.observable, positions=positions,
+        residual_3d=residual_3d, residual_px=residual_px, converged=converged, scale=float(s), rotation=R,
+        translation=t, cameras=cams, translations_2d=ts2, chain=chain, urdf_path=urdf, message=msg,
+        n_iter=int(weak.n_iter + best["n_iter"]), relative=weak.relative, tracks=tracks, confidence=confidence,
+        positions_base=pos_base, input_poses=poses, timings=timings, intrinsics=cam,
+        camera_pose=(view.R[0].copy(), view.t[0].copy()), focal_px=focal, focal_std_px=focal_std,
     )

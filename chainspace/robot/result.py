@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 import numpy as np
 
 from ..chain import KinematicChain
@@ -21,7 +22,12 @@ class JointFit:
     reconstruction is); residual_3d (F,) RMS distance to the reconstructed points; residual_px (F,) RMS
     reprojection error or None; converged (F,) bool; scale, rotation (3, 3), translation (3,) the
     similarity from the robot's base frame to the reconstruction's; cameras (F, 2, 3) and
-    translations_2d (F, 2) map the base frame to the image (``u = cameras[f] @ x + translations_2d[f]``).
+    translations_2d (F, 2) map the base frame to the image (``u = cameras[f] @ x + translations_2d[f]``;
+    with a pinhole camera the weak-perspective camera that linearises it at the robot's depth).
+    With a pinhole camera (``fit_joint_angles(..., intrinsics=...)`` or a measured focal):
+    ``intrinsics`` (K, undistort), ``camera_pose`` (R, t) with ``x_cam = R x_base + t`` in metres;
+    ``focal_px``, ``focal_std_px`` when the focal length was estimated (also when it was not
+    measurable and the weak-perspective fit is reported).
     """
 
     q: np.ndarray
@@ -46,6 +52,10 @@ class JointFit:
     positions_base: np.ndarray | None = None
     input_poses: np.ndarray | None = None
     timings: dict[str, float] = field(default_factory=dict)
+    intrinsics: Any = None  # the pinhole camera used (K, undistort[, project]) or None (weak perspective)
+    camera_pose: tuple[np.ndarray, np.ndarray] | None = None  # (R (3, 3), t (3,)): x_cam = R x_base + t, metres
+    focal_px: float | None = None  # estimated focal length (image_size given, no intrinsics)
+    focal_std_px: float | None = None
 
     @property
     def n_frames(self) -> int:
@@ -67,7 +77,16 @@ class JointFit:
 
     def reprojected(self) -> np.ndarray | None:
         """(F, J, 2) the fitted robot seen by the fitted camera, or None without a camera."""
-        if self.cameras is None or self.positions_base is None:
+        if self.positions_base is None:
+            return None
+        if self.intrinsics is not None and self.camera_pose is not None:
+            R, t = self.camera_pose
+            y = self.positions_base @ np.asarray(R).T + np.asarray(t)
+            if hasattr(self.intrinsics, "project"):
+                return self.intrinsics.project(y)  # a PinholeCamera: lens distortion included
+            K = np.asarray(self.intrinsics.K, float)
+            return (y[..., :2] / y[..., 2:]) @ K[:2, :2].T + K[:2, 2]
+        if self.cameras is None:
             return None
         return np.einsum("fij,fkj->fki", self.cameras, self.positions_base) + self.translations_2d[:, None]
 

@@ -37,7 +37,8 @@ def _prefer_rest(robot: RobotKinematics, cands: list[dict], key: str, blind: np.
 def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarray, w: np.ndarray, prior,
                    sigma: float, max_iter: int, tol: float, wrong_side: Callable[[dict], bool],
                    reflected: Callable[[dict], dict],
-                   rebranch: Callable[[dict, tuple], tuple[np.ndarray, _View]]) -> tuple[dict, bool, int]:
+                   rebranch: Callable[[dict, tuple], tuple[np.ndarray, _View]],
+                   scored_out: list | None = None) -> tuple[dict, bool, int]:
     """The fit of the most probable motion under the smoothness prior, among ``results`` (refined fits,
     preferred first): each distinct fit that the tracks alone nearly tie is smoothed (:func:`_smooth_lm`)
     and scored by the smoothed objective, robust residuals plus the motion prior (``prior``, the sparse
@@ -109,4 +110,6 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
         score(start, start["q"], start["view"])
     lowest = min(sr[0] for sr in scored)
     tied = [r for sr, r in scored if sr - lowest <= 25.0 * sigma ** 2]
+    if scored_out is not None:
+        scored_out.extend(scored)
     return min(tied, key=lambda r: (wrong_side(r), _roughness(robot, r["q"]))), len(tied) > 1, n_iter

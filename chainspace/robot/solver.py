@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from .kinematics import RobotKinematics
-from .views import _View, _skew
+from .views import _View
 
 
 def _huber(rn: np.ndarray, delta: float | None) -> tuple[np.ndarray, np.ndarray]:
@@ -25,20 +25,19 @@ def _normal_equations(view: _View, jac: np.ndarray, y: np.ndarray, res: np.ndarr
 
     jac (F, J, 3, nv) point Jacobians, y = R x (F, J, 3), ww (F, J) IRLS weights. Returns per frame
     Hqq (F, nv, nv), Hqc (F, nv, nc), gq (F, nv) and per view Hcc (C, nc, nc), gc (C, nc); view
-    parameters: rotation vector, scale, translation (nc = 4 + D).
+    parameters: those of the view's step (:meth:`_View.derivatives`, :meth:`_PinholeView.derivatives`).
     """
     F, J, D = res.shape
-    sc = view.S[view.cam_of][:, None, None, None]
-    Jq = (view.matrices()[:, None] @ jac * free[:, None, None, :]).reshape(F, J * D, -1)
-    Jc = (np.concatenate([-sc * _skew(y)[..., :D, :], y[..., :D, None],
-                          np.broadcast_to(np.eye(D), (F, J, D, D))], -1) * free_view).reshape(F, J * D, -1)
+    dx, dc = view.derivatives(y)
+    Jq = (dx @ jac * free[:, None, None, :]).reshape(F, J * D, -1)
+    Jc = (dc * free_view).reshape(F, J * D, -1)
     # batched products over the stacked (point, axis) rows: einsum's three-operand loops were the
     # solver's main cost after the kinematics
     JqW = (Jq * np.repeat(ww, D, axis=1)[..., None]).transpose(0, 2, 1)
     JcW = (Jc * np.repeat(ww, D, axis=1)[..., None]).transpose(0, 2, 1)
     r = res.reshape(F, J * D, 1)
     Hqq, Hqc, gq = JqW @ Jq, JqW @ Jc, (JqW @ r)[..., 0]
-    C, nc = len(view.S), 4 + D
+    C, nc = len(view.S), view.n_params
     Hcc, gc = np.zeros((C, nc, nc)), np.zeros((C, nc))
     np.add.at(Hcc, view.cam_of, JcW @ Jc)
     np.add.at(gc, view.cam_of, (JcW @ r)[..., 0])
@@ -95,7 +94,7 @@ def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.
     from scipy.linalg import cho_solve_banded, cholesky_banded
 
     F, J, D = target.shape
-    nv, nc = robot.nv, 4 + D
+    nv, nc = robot.nv, view.n_params
     N = F * nv
     u = 3 * nv - 1  # upper bandwidth: frame f couples to f + 2
     tz = np.nan_to_num(target)
@@ -165,7 +164,7 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
     positions (F, J, 3), converged (F,), iterations).
     """
     F, J, D = target.shape
-    nv, nc = robot.nv, 4 + D
+    nv, nc = robot.nv, view.n_params
     tz = np.nan_to_num(target)
     eye_q, eye_c = np.eye(nv), np.eye(nc)
     fixed_q, fixed_c = (~free).astype(float), (~free_view).astype(float)

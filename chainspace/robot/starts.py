@@ -150,7 +150,7 @@ def _sequential_ik(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, view: _
         alt = _seeded(robot, np.broadcast_to(prev, (n, robot.nq)), free[idx]) if q_alt is None else q_alt[idx]
         q0 = np.concatenate([np.broadcast_to(prev, (n, robot.nq)), alt])
         qs, _, rn, _, _, _ = _sequence_lm(robot, q0, X[both], w[both], view.take(both), free[both],
-                                          np.zeros(4 + X.shape[-1], bool), 30, 1e-8, None)
+                                          np.zeros(view.n_params, bool), 30, 1e-8, None)
         err = np.sqrt((w[both] * rn ** 2).sum(1)).reshape(2, n)
         if q_alt is None:
             d = _rest_distance(robot, qs, prev, gauge).reshape(2, n)

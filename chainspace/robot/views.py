@@ -139,6 +139,22 @@ class _View:
         c = self.cam_of
         return self.S[c][:, None, None] * self.R[c][:, : self.T.shape[1]]
 
+    @property
+    def n_params(self) -> int:
+        """Parameters of one view in a step of :meth:`moved`: rotation vector, scale, translation."""
+        return 4 + self.T.shape[1]
+
+    def derivatives(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Jacobian blocks of the prediction at y = R x (from :meth:`apply`): d prediction / d point
+        (F, J, D, 3) and d prediction / d view parameters (F, J, D, n_params) (the step of :meth:`moved`)."""
+        F, J = y.shape[:2]
+        D = self.T.shape[1]
+        sc = self.S[self.cam_of][:, None, None, None]
+        dx = np.broadcast_to(self.matrices()[:, None], (F, J, D, 3))
+        dc = np.concatenate([-sc * _skew(y)[..., :D, :], y[..., :D, None],
+                             np.broadcast_to(np.eye(D), (F, J, D, D))], -1)
+        return dx, dc
+
 
 def _align(x: np.ndarray, X: np.ndarray, w: np.ndarray, transform: str) -> _View:
     """The sequence's similarity (or rigid motion, or identity) from base-frame points x onto X."""
@@ -154,3 +170,92 @@ def _looks_down(view: _View) -> float:
     """How much the camera(s) look down on the base plane: minus the z of the forward axis (the
     rotation's third row, image y pointing down), averaged; > 0 from above."""
     return -float(np.mean(view.R[:, 2, 2]))
+
+
+@dataclass
+class _PinholeView:
+    """One static pinhole camera: ``u = f (y_x, y_y) / y_z + c`` with ``y = R x + t`` (camera frame,
+    metres; x in the robot's base frame). Same interface as :class:`_View` for the solvers; its step
+    (:meth:`moved`) is a rotation vector (R <- exp(w^) R), a translation and, when ``fit_focal``, the
+    change of log f. ``cam_of`` (F,) is all zeros (one camera)."""
+
+    R: np.ndarray  # (1, 3, 3)
+    t: np.ndarray  # (1, 3)
+    f: float
+    c: np.ndarray  # (2,) principal point, px
+    cam_of: np.ndarray
+    fit_focal: bool = False
+
+    per_frame = False
+
+    @property
+    def S(self) -> np.ndarray:  # the solvers count views by len(S)
+        return np.ones(1)
+
+    @property
+    def n_params(self) -> int:
+        return 7 if self.fit_focal else 6
+
+    def apply(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(prediction (F, J, 2) px, camera-frame points y = R x + t (F, J, 3))."""
+        y = np.einsum("ij,fkj->fki", self.R[0], x) + self.t[0]
+        z = np.where(np.abs(y[..., 2:]) > 1e-9, y[..., 2:], 1e-9)
+        return self.f * y[..., :2] / z + self.c, y
+
+    def derivatives(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """d prediction / d point (F, J, 2, 3) and / d view parameters (F, J, 2, n_params)."""
+        z = np.where(np.abs(y[..., 2]) > 1e-9, y[..., 2], 1e-9)
+        a = self.f / z
+        P = np.zeros(y.shape[:-1] + (2, 3))  # d u / d y
+        P[..., 0, 0] = a
+        P[..., 1, 1] = a
+        P[..., :, 2] = -a[..., None] * y[..., :2] / z[..., None]
+        dx = P @ self.R[0]
+        dw = P @ -_skew(y - self.t[0])  # d y / d w = -[R x]^
+        parts = [dw, P]
+        if self.fit_focal:
+            parts.append((self.f * y[..., :2] / z[..., None])[..., None])
+        return dx, np.concatenate(parts, -1)
+
+    def moved(self, dc: np.ndarray) -> "_PinholeView":
+        dc = np.asarray(dc).reshape(-1)
+        f = self.f * float(np.exp(dc[6])) if self.fit_focal else self.f
+        return _PinholeView(_rotvec(dc[:3])[None] @ self.R, self.t + dc[3:6], f, self.c, self.cam_of,
+                            self.fit_focal)
+
+    def take(self, idx: np.ndarray) -> "_PinholeView":
+        return _PinholeView(self.R, self.t, self.f, self.c, self.cam_of[idx], self.fit_focal)
+
+    def put(self, idx: np.ndarray, sub: "_PinholeView", accept: np.ndarray) -> "_PinholeView":
+        if not accept.any():
+            return self
+        return _PinholeView(sub.R, sub.t, sub.f, sub.c, self.cam_of, self.fit_focal)
+
+    @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.f, 0.0, self.c[0]], [0.0, self.f, self.c[1]], [0.0, 0.0, 1.0]])
+
+    def weak_approximation(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(F, 2, 3), (F, 2): the weak-perspective camera u ~ P x + t2 that linearises this one at the
+        depth of the points x (F, J, 3) (their centroid's, over the sequence)."""
+        F = len(self.cam_of)
+        zc = float(np.nanmean(np.einsum("j,fkj->fk", self.R[0, 2], x))) + self.t[0, 2]
+        s = self.f / zc
+        return (np.broadcast_to(s * self.R[0, :2], (F, 2, 3)).copy(),
+                np.broadcast_to(self.c + s * self.t[0, :2], (F, 2)).copy())
+
+    def matrices(self) -> np.ndarray:
+        return np.broadcast_to(self.R[0, :2], (len(self.cam_of), 2, 3))
+
+
+def _pinhole_from_weak(view: _View, x: np.ndarray, f: float, c: np.ndarray, fit_focal: bool) -> _PinholeView:
+    """The pinhole camera of focal f, principal point c that sees the points x (F, J, 3, base frame) as
+    the weak-perspective camera ``view`` (one static) does at their centroid: same rotation, depth
+    of the centroid f / s, image position of the base origin from the translation."""
+    R = view.R[0]
+    s = float(view.S[0])
+    zc = float(np.nanmean(np.einsum("j,fkj->fk", R[2], x)))
+    tz = f / s - zc
+    txy = (view.T[0] - c) / s * (tz + zc) / (f / s)
+    return _PinholeView(R[None].copy(), np.concatenate([txy, [tz]])[None], float(f), np.asarray(c, float),
+                        view.cam_of.copy(), fit_focal)

@@ -33,6 +33,11 @@ class RobotTrial:
     positions (F, J, 3) metres in the robot's base frame, cameras (F, 2, 3) px per metre (rows: image
     right, image down; ``tracks = positions @ cameras^T + translations + noise``), translations (F, 2)
     px, tracks (F, J, 2) px with NaN where a point was dropped, confidence (F, J) in [0, 1], fps.
+
+    Filmed through a pinhole camera (``synthesize(camera="pinhole")``): ``intrinsics`` (``K``, ``dist``),
+    the pose ``camera_R``, ``camera_t`` (``x_cam = camera_R @ x + camera_t``, metres) and ``image_size``
+    (w, h) are the truth; ``cameras``/``translations`` then hold the weak-perspective camera that
+    linearises it at the depth of the robot's points (an approximation, for plotting).
     """
 
     chain: KinematicChain
@@ -46,6 +51,10 @@ class RobotTrial:
     urdf_path: str = ""
     noise_px: float = 0.0
     trajectory: str = "random"
+    intrinsics: Any = None  # pinhole filming: the camera (K (3, 3), dist (5,), undistort), else None
+    camera_R: np.ndarray | None = None  # pinhole: x_cam = camera_R @ x_base + camera_t (metres)
+    camera_t: np.ndarray | None = None
+    image_size: tuple[int, int] | None = None
 
     @property
     def n_frames(self) -> int:
@@ -251,6 +260,10 @@ def synthesize(
     seed: Any = None,
     trajectory: str | None = "random",
     elevation_deg: float | None = None,
+    distance_reaches: float | None = None,
+    image_size: tuple[int, int] = (1920, 1080),
+    focal_px: float | None = None,
+    dist: Any = None,
 ) -> RobotTrial:
     """Film a robot moving along a known trajectory.
 
@@ -273,6 +286,16 @@ def synthesize(
     trajectory
         ``"random"`` (smooth random motion of every joint within its limits) or ``"milling"`` (the tool
         tip traces a rounded rectangle in a horizontal plane, tool orientation held).
+    camera (pinhole)
+        ``"pinhole"``, or a camera with ``K`` (and ``dist``), or a 3x3 matrix K: one static pinhole camera
+        (perspective projection, pixels) at ``distance_reaches`` robot reaches (random in [1.5, 3] when
+        None) from the centre of the trajectory's points, looking at it from a random azimuth and the
+        elevation above (``elevation_deg`` < 0: below the base plane). ``"weak"`` is ``"static"``.
+    image_size, focal_px, dist
+        Pinhole filming (:class:`chainspace.cameras.PinholeCamera` projects, distortion included): image
+        (width, height) px (principal point at its centre unless K gives one; a camera's own size wins);
+        focal length px (random in 0.8-1.2 x the width when None); lens distortion (k1, k2, p1, p2, k3)
+        applied to the tracks (OpenCV's model). ``image_height_px`` is ignored (the distance sets the size).
     seed
         Seed for the trajectory, camera, noise and drops.
     """
@@ -292,8 +315,20 @@ def synthesize(
     if elevation_deg is not None:
         elevation_deg = number("elevation_deg", elevation_deg, lambda v: -90 < v < 90,
                                "None or a number of degrees in (-90, 90)")
-    if not isinstance(camera, str) or camera not in ("static", "moving"):
-        raise DescriptionError(f"camera must be 'static' or 'moving', not {camera!r}")
+    pinhole_cam = None
+    if isinstance(camera, str) and camera == "weak":
+        camera = "static"
+    if not isinstance(camera, str):
+        from ..cameras.pinhole import as_camera
+
+        pinhole_cam = as_camera(camera)
+        camera = "pinhole"
+    if camera not in ("static", "moving", "pinhole"):
+        raise DescriptionError(f"camera must be 'static', 'weak', 'moving', 'pinhole' or a camera (K), not {camera!r}")
+    if distance_reaches is not None:
+        distance_reaches = number("distance_reaches", distance_reaches, lambda v: v > 0, "a number > 0 (reaches)")
+    if focal_px is not None:
+        focal_px = number("focal_px", focal_px, lambda v: v > 0, "a number > 0 (pixels)")
     trajectory = "random" if trajectory is None else trajectory
     if not isinstance(trajectory, str) or trajectory not in ("random", "milling"):
         raise DescriptionError(f"trajectory must be 'random' or 'milling', not {trajectory!r}")
@@ -311,6 +346,9 @@ def synthesize(
     positions = robot.positions(q)
     elev = rng.uniform(10.0, 35.0) if elevation_deg is None else float(elevation_deg)
     cam_seed = int(rng.integers(2 ** 31))
+    if camera == "pinhole":
+        return _film_pinhole(chain, robot, q, positions, rng, elev, cam_seed, pinhole_cam, distance_reaches,
+                             image_size, focal_px, dist, noise_px, drop, fps, trajectory)
     unit = orbit_cameras(n_frames, sweep_deg=0.0 if camera == "static" else 10.0, elevation_deg=elev,
                          seed=cam_seed)
     flat = observe(positions, unit)
@@ -329,6 +367,47 @@ def synthesize(
     return RobotTrial(chain=chain, q=q, positions=positions, cameras=cameras, translations=translations,
                       tracks=tracks, confidence=confidence, fps=float(fps), urdf_path=chain.metadata["urdf_path"],
                       noise_px=float(noise_px), trajectory=trajectory)
+
+
+def _film_pinhole(chain, robot, q, positions, rng, elev, cam_seed, cam, distance_reaches, image_size, focal_px,
+                  dist, noise_px, drop, fps, trajectory) -> RobotTrial:
+    """One static pinhole camera looking at the centre of the trajectory's points (see synthesize)."""
+    from ..cameras.pinhole import PinholeCamera
+    from .views import look_rotation
+
+    w, h = (float(v) for v in image_size)
+    F = len(q)
+    d = rng.uniform(1.5, 3.0) if distance_reaches is None else float(distance_reaches)
+    f = (rng.uniform(0.8, 1.2) * w if focal_px is None else float(focal_px))
+    if cam is None:
+        cam = PinholeCamera(f, f, w / 2, h / 2, dist, int(w), int(h))
+    else:
+        if cam.image_size is not None:
+            w, h = (float(v) for v in cam.image_size)
+        cam = PinholeCamera(cam.fx, cam.fy, cam.cx, cam.cy, cam.dist if dist is None else dist, int(w), int(h))
+    az = np.random.default_rng(cam_seed).uniform(0, 2 * np.pi)
+    R = look_rotation(az, np.deg2rad(elev))
+    target = positions.reshape(-1, 3).mean(0)
+    centre = target - R[2] * d * robot.reach()
+    t = -R @ centre
+    y = positions @ R.T + t
+    if (y[..., 2] <= 0.05 * robot.reach()).any():
+        raise TrackError("the robot reaches behind or into the pinhole camera: increase distance_reaches")
+    clean = cam.project(y)
+    tracks = clean + np.random.default_rng(int(rng.integers(2 ** 31))).normal(0, noise_px, clean.shape)
+    confidence = np.ones(tracks.shape[:2])
+    if drop > 0:
+        gone = rng.random(confidence.shape) < drop
+        tracks[gone] = np.nan
+        confidence[gone] = 0.0
+    K = np.asarray(cam.K, float)
+    zc = float(y[..., 2].mean())
+    cameras = np.broadcast_to(K[0, 0] / zc * R[:2], (F, 2, 3)).copy()
+    translations = np.broadcast_to(K[:2, 2] + K[0, 0] / zc * t[:2], (F, 2)).copy()
+    return RobotTrial(chain=chain, q=q, positions=positions, cameras=cameras, translations=translations,
+                      tracks=tracks, confidence=confidence, fps=float(fps), urdf_path=chain.metadata["urdf_path"],
+                      noise_px=float(noise_px), trajectory=trajectory, intrinsics=cam, camera_R=R, camera_t=t,
+                      image_size=(int(w), int(h)))
 
 
 def _chain(urdf_or_chain: Any) -> KinematicChain:

@@ -1,0 +1,156 @@
+"""The perspective refinement of a robot fit: one static pinhole camera (known intrinsics, or the
+focal length estimated) fitted with the joint angles on the reprojection error in pixels, started from
+the weak-perspective fit's winner and its mirror/flip alternatives (see :mod:`chainspace.robot.fit`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .kinematics import RobotKinematics, _wrapped
+from .solver import _huber, _motion_prior, _noise_sigma, _normal_equations, _sequence_lm, _smooth_lm, \
+    _smoothed_objective
+from .views import _PinholeView, _pinhole_from_weak
+from .candidates import _viterbi_reanchored
+
+# a perspective fit must beat weak perspective's by this many noise variances (squared residuals, a
+# likelihood-ratio test, as for the ties of fit.py) to count as measured perspective
+LR_MARGIN = 25.0
+# the focal length counts as measured when its standard deviation is below this fraction of it
+FOCAL_REL_STD = 0.25
+
+
+def _robust(rn: np.ndarray, w: np.ndarray, delta: float | None) -> float:
+    return float((w * _huber(rn, delta)[0]).sum())
+
+
+def _camera_covariance(robot: RobotKinematics, q: np.ndarray, view: _PinholeView, tracks: np.ndarray,
+                       w: np.ndarray, free: np.ndarray, delta: float | None, sigma2: float) -> np.ndarray:
+    """Gauss-Newton covariance of the camera parameters (rotation vector, translation[, log f]) with the
+    joint angles of every frame eliminated (Schur complement; the motion prior left out, so the
+    spread is an upper bound of what the smoothed fit knows), scaled by the residual variance sigma2."""
+    pos, jac = robot.jacobians(q)
+    pred, y = view.apply(pos)
+    res = pred - np.nan_to_num(tracks)
+    ww = w * _huber(np.linalg.norm(res, axis=-1), delta)[1]
+    Hqq, Hqc, gq, Hcc, gc = _normal_equations(view, jac, y, res, ww, free, np.ones(view.n_params, bool))
+    nv = robot.nv
+    Hq = Hqq + (~free)[:, :, None] * np.eye(nv) + 1e-12 * np.eye(nv)
+    schur = Hcc[0] - np.einsum("fvc,fvd->cd", Hqc, np.linalg.solve(Hq, Hqc))
+    try:  # not pinv: a direction the tracks do not fix must come out with a huge variance, not zero
+        scale = np.sqrt(np.maximum(np.diag(schur), 1e-300))
+        cov = np.linalg.inv(schur / np.outer(scale, scale)) / np.outer(scale, scale)
+    except np.linalg.LinAlgError:
+        return np.full(schur.shape, np.inf)
+    return sigma2 * cov
+
+
+def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.ndarray, w: np.ndarray,
+                       K: np.ndarray | None, image_size, accel_std: float | None, fps: float,
+                       speed_decay_s: float | None, unseen: np.ndarray, max_iter: int, tol: float,
+                       weak_sse: float, smooth: bool) -> dict:
+    """Fit the pinhole camera and joint angles from each weak-perspective start; keep the lowest.
+
+    starts: dicts with q (F, nq), view (weak :class:`_View`), free, free_prior (F, nv), delta (Huber).
+    K (3, 3) known intrinsics (tracks already undistorted), or None with ``image_size`` (w, h): the
+    focal length is fitted too (principal point at the image centre). Returns a dict with the winner's
+    q, view, rn, pos, objective, sse, the other starts' objectives, the focal and its standard
+    deviation (estimated focal only), and ``measured`` (False: perspective not measurable; see
+    ``reason``).
+    """
+    fit_focal = K is None
+    if fit_focal:
+        wpx, hpx = (float(v) for v in image_size)
+        c = np.array([wpx / 2, hpx / 2])
+        f_inits = [wpx * k for k in (0.5, 0.7, 1.0, 1.4, 2.0, 4.0)]
+        aspect = 1.0
+    else:
+        K = np.asarray(K, float)
+        c = K[:2, 2].copy()
+        f_inits = [float(K[0, 0])]
+        aspect = float(K[0, 0] / K[1, 1])
+    # square pixels for the solver: rows scaled to the focal of the columns
+    tr = tracks.copy()
+    tr[..., 1] = c[1] + (tr[..., 1] - c[1]) * aspect
+    F = len(tracks)
+    n_obs = 2 * int((w > 0).sum())
+    fits = []
+    chosen_f = None
+    for st in starts:
+        q0 = st["q"]
+        pos0 = robot.positions(q0)
+        delta = st["delta"]
+        none_free = np.zeros_like(st["free"])
+        ones_k, n_iter = np.ones(6, bool), 0
+        best_cam = None
+        for f0 in (f_inits if fit_focal and chosen_f is None else [chosen_f or f_inits[0]]):
+            # per focal: the camera alone, then per-frame IK under it, alternated (the focal held); the
+            # weak start's motion can be far off under perspective, so the focal is chosen after the IK
+            pv = _pinhole_from_weak(st["view"], pos0, f0, c, False)
+            pv = _sequence_lm(robot, q0, tr, w, pv, none_free, ones_k, 30, 1e-10, delta)[1]
+            q = q0
+            for _ in range(3 if fit_focal else 0):
+                q, _, _, _, _, it = _sequence_lm(robot, q, tr, w, pv, st["free"], ~ones_k, 10, 1e-8, None)
+                pv = _sequence_lm(robot, q, tr, w, pv, none_free, ones_k, 10, 1e-10, delta)[1]
+                n_iter += it
+            cost = _robust(np.linalg.norm(pv.apply(robot.positions(q))[0] - np.nan_to_num(tr), axis=-1), w, delta)
+            if best_cam is None or cost < best_cam[0]:
+                best_cam = (cost, pv, q, f0)
+        _, pv, q, f0 = best_cam
+        chosen_f = chosen_f or (f0 if fit_focal else None)  # the other starts reuse the winner's focal
+        pv = _PinholeView(pv.R, pv.t, pv.f, pv.c, pv.cam_of, fit_focal)
+        ones = np.ones(pv.n_params, bool)
+        for _ in range(3):  # per-frame IK under the camera, alternated with the camera alone
+            q, _, _, _, _, it = _sequence_lm(robot, q, tr, w, pv, st["free"], ~ones, 10, 1e-8, None)
+            pv = _sequence_lm(robot, q, tr, w, pv, none_free, ones, 10, 1e-10, delta)[1]
+            n_iter += it
+        out = _sequence_lm(robot, q, tr, w, pv, st["free"], ones, max_iter, tol, delta)
+        for _ in range(2):  # the branch of every frame, chosen for the whole sequence under this camera
+            sig = max(_noise_sigma(out[2], w), st["px_floor"])
+            q_fix, view_fix = _viterbi_reanchored(robot, out[0], tr, w, out[1], st["free"], sig, st["gauge"], False,
+                                                  st["blind"], unseen)
+            if np.abs(_wrapped(robot, q_fix - out[0])).max() < 0.05:
+                break
+            new = _sequence_lm(robot, q_fix, tr, w, view_fix, st["free"], ones, max_iter, tol, delta)
+            if _robust(new[2], w, delta) > 0.99 * _robust(out[2], w, delta):
+                break
+            out = new
+        objective = _robust(out[2], w, delta)
+        prior = None
+        if smooth and accel_std is not None and robot.euclidean and F >= 3:
+            sigma = max(_noise_sigma(out[2], w), 1e-3)
+            mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
+            prior = _motion_prior(unseen, mu, np.inf if speed_decay_s is None else speed_decay_s * float(fps))
+            out = _smooth_lm(robot, robot.continuous(out[0]), tr, w, out[1], st["free_prior"],
+                             np.ones(pv.n_params, bool), max_iter, tol, delta, prior)
+            objective = _smoothed_objective(prior, out[0], out[2], w, delta)
+        fits.append(dict(q=out[0], view=out[1], rn=out[2], pos=out[3], conv=out[4], n_iter=out[5] + n_iter,
+                         objective=objective, sse=float((w * out[2] ** 2).sum()), free=st["free"], delta=delta,
+                         prior=prior))
+    fits.sort(key=lambda r: r["objective"])
+    best = fits[0]
+    var = max(best["sse"] / max(n_obs - 7, 1), 1e-12)
+    others = [r for r in fits[1:] if np.abs(_wrapped(robot, r["q"] - best["q"])).max() > 0.05]
+    best["settled"] = all(r["objective"] - best["objective"] > LR_MARGIN * var for r in others)
+    best["n_alternatives"] = len(others)
+    best["var"] = var
+    best["measured"], best["reason"] = True, ""
+    if aspect != 1.0:  # back to the tracks' pixel rows
+        pass
+    best["aspect"] = aspect
+    if fit_focal:
+        cov = _camera_covariance(robot, best["q"], best["view"], tr, w, best["free"], best["delta"], var)
+        f = best["view"].f
+        std = float(f * np.sqrt(max(cov[6, 6], 0.0)))
+        best["focal"], best["focal_std"] = float(f), std
+        gain = weak_sse - best["sse"]
+        if not np.isfinite(std) or std > FOCAL_REL_STD * f:
+            best["measured"] = False
+            best["reason"] = (f"the focal length is not measurable from these tracks ({f:.0f} +- {std:.0f} px: no "
+                              "measurable perspective)")
+        elif gain <= LR_MARGIN * var:
+            best["measured"] = False
+            best["reason"] = (f"perspective does not fit the tracks measurably better than weak perspective "
+                              f"(squared residuals {best['sse']:.4g} against {weak_sse:.4g} px^2, noise "
+                              f"variance {var:.3g} px^2: no measurable perspective)")
+    return best
