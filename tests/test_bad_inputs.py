@@ -295,16 +295,14 @@ def test_urdf_bad_options(arm_urdf, kwargs, match):
     raises_located(from_urdf, arm_urdf, match=match, **kwargs)
 
 
-def test_urdf_with_one_link_is_a_one_point_chain(tmp_path):
-    """BUGS.md F1 (fixed): a URDF without joints crashed in point_positions."""
+def test_urdf_with_one_link_is_a_clear_error(tmp_path):
+    """BUGS.md F1 (fixed): a URDF without joints crashed in point_positions; now it is refused by name."""
     from chainspace import from_urdf
-    from chainspace.reconstruction.pipeline import reconstruct
 
     path = tmp_path / "one.urdf"
     path.write_text('<robot name="r"><link name="only"/></robot>')
-    chain = from_urdf(path)
-    assert chain.joints == ("only",) and np.allclose(chain.rest_pose, 0)
-    raises_located(reconstruct, np.ones((4, 1, 2)), chain, match="at least 3 visible points")
+    # issue 17: a robot with no movable joint has nothing to fit, and says so with the file's name
+    raises_located(from_urdf, path, match="one.urdf: the robot 'r' has no movable joint")
 
 
 # ================================================================================ track files
@@ -867,7 +865,7 @@ def test_fit_non_convergence_is_flagged_with_a_warning(arm, arm_trial):
         ({"elevation_deg": 90.0}, "elevation_deg must be None or a number of degrees in (-90, 90), not 90.0"),
         ({"elevation_deg": float("nan")}, "elevation_deg"),
         ({"elevation_deg": "high"}, "elevation_deg"),
-        ({"camera": ["static"]}, "camera must be 'static' or 'moving', not ['static']"),
+        ({"camera": ["static"]}, "camera must be 'static', 'weak', 'moving', 'pinhole' or a camera (a PinholeCamera, a 3x3 K or a calibration file), not ['static']"),
         ({"trajectory": 3}, "trajectory must be 'random' or 'milling', not 3"),
         ({"seed": "abc"}, "seed"),
         ({"seed": -1}, "seed"),

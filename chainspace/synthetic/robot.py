@@ -318,13 +318,18 @@ def synthesize(
     pinhole_cam = None
     if isinstance(camera, str) and camera == "weak":
         camera = "static"
+    need = "camera must be 'static', 'weak', 'moving', 'pinhole' or a camera (a PinholeCamera, a 3x3 K or a calibration file)"
     if not isinstance(camera, str):
         from ..cameras.pinhole import as_camera
+        from ..errors import CameraError
 
-        pinhole_cam = as_camera(camera)
+        try:
+            pinhole_cam = as_camera(camera)
+        except CameraError as exc:
+            raise CameraError(f"{need}, not {camera!r}: {exc}") from None
         camera = "pinhole"
     if camera not in ("static", "moving", "pinhole"):
-        raise DescriptionError(f"camera must be 'static', 'weak', 'moving', 'pinhole' or a camera (K), not {camera!r}")
+        raise DescriptionError(f"{need}, not {camera!r}")
     if distance_reaches is not None:
         distance_reaches = number("distance_reaches", distance_reaches, lambda v: v > 0, "a number > 0 (reaches)")
     if focal_px is not None:
