@@ -30,7 +30,7 @@ browser:
 	  echo "note: chromium could not be installed; the browser test will be skipped"
 
 test: install browser
-	$(BIN)/python -m pytest -q -n auto  # one worker per core: the robot-fit tests dominate
+	$(BIN)/python -m pytest -q -n auto --dist worksteal  # one worker per core; idle workers take queued tests
 
 bench: install
 	$(BIN)/chainspace bench

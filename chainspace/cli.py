@@ -650,6 +650,7 @@ def demo(
     Path("demo-output"),
     seed: Annotated[int, typer.Option(help="Random seed of the synthetic trial (the camera placement; "
                                            "see chainspace.demo.run_demo).")] = 4,
+    frames: Annotated[int, typer.Option(help="Frames of the filmed motion (fewer: a quicker look).")] = 300,
     overwrite: Overwrite = False,
 ) -> None:
     """The main job on bundled data: the milling arm filmed by one camera, reconstructed, its joint angles
@@ -658,6 +659,8 @@ def demo(
     from .demo import run_demo
 
     _seed(seed)
+    if frames < 10:
+        raise _fail(f"--frames must be at least 10, not {frames}", EXIT_BAD_INPUT)
     console = _console()
     with console.status("running the demo") as status:
         def progress(message: str) -> None:
@@ -665,7 +668,7 @@ def demo(
                 console.print(message.strip(), markup=False, highlight=False, soft_wrap=True)
                 status.update(message.strip())
 
-        summary = run_demo(out, overwrite=overwrite, progress=progress, seed=seed)
+        summary = run_demo(out, overwrite=overwrite, progress=progress, seed=seed, n_frames=frames)
         progress("writing the viewer (viewer.html) and the plots (joint_angles.png, convergence.png, "
                  "joint_errors.png)")
         status.update("writing the viewer and the plots")

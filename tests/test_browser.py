@@ -84,7 +84,7 @@ def test_browser_opens_the_demo_viewer(tmp_path):
     from chainspace.cli import app
 
     out = tmp_path / "demo"
-    result = CliRunner().invoke(app, ["demo", "--out", str(out)])
+    result = CliRunner().invoke(app, ["demo", "--out", str(out), "--frames", "40"])
     assert result.exit_code in (0, 1), result.output  # 1: it ran and says validation failed
     html = out / "viewer.html"
     assert html.exists(), f"the demo wrote no viewer.html ({sorted(os.listdir(out))})"

@@ -203,13 +203,13 @@ def test_demo_adds_viewer_and_plots(monkeypatch, tmp_path):
     report = SimpleNamespace(passed=False, to_dict=lambda: {"joints": [{"name": "a", "rms_deg": 1.0, "max_deg": 2.0}]})
     calls = []
 
-    def run_demo(out, *, overwrite=False, progress=True, seed=0):
-        calls.append((str(out), overwrite, seed))
+    def run_demo(out, *, overwrite=False, progress=True, seed=0, n_frames=300):
+        calls.append((str(out), overwrite, seed, n_frames))
         return {"fit": fit, "truth_q": q + 0.01, "report": report, "passed": False, "table": "| a | 1.0 |"}
 
     _fake_module(monkeypatch, "demo", run_demo=run_demo)
-    result = runner.invoke(app, ["demo", "--out", str(tmp_path / "d"), "--seed", "3"])
-    assert calls == [(str(tmp_path / "d"), False, 3)]
+    result = runner.invoke(app, ["demo", "--out", str(tmp_path / "d"), "--seed", "3", "--frames", "30"])
+    assert calls == [(str(tmp_path / "d"), False, 3, 30)]
     assert result.exit_code == 1 and "validation failed" in result.stderr  # the report did not pass
     assert "| a | 1.0 |" in result.stdout
     for name in ("viewer.html", "joint_angles.png", "joint_errors.png"):
