@@ -38,14 +38,3 @@ def example_urdf():
             pytest.skip(str(exc))
 
     return find
-
-
-# Modules whose tests fit robots or build the package, a minute or more each on the 2-core CI machine.
-_LONG_MODULES = {"test_fit.py", "test_fit_pinhole.py", "test_docs.py", "test_browser.py", "test_demo.py",
-                 "test_readme.py", "test_packaging.py", "test_robot_joints.py"}
-
-
-def pytest_collection_modifyitems(items):
-    """Long tests first: pytest-xdist hands tests out in this order, so the workers then finish together
-    instead of one of them running the longest robot fits alone at the end."""
-    items.sort(key=lambda item: not (item.get_closest_marker("slow") or item.path.name in _LONG_MODULES))
