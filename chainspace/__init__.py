@@ -77,6 +77,7 @@ _EXPORTS: dict[str, str] = {
     "plot_error_sweep": "view.plots",
     "write_html": "view.viewer",
     "show": "view.viewer",
+    "draw_overlay": "video.overlay",
     # many recordings at once, on Dask
     "run_batch": "batch",
     "read_manifest": "batch",
