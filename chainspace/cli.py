@@ -581,6 +581,34 @@ def view(
         pass
 
 
+
+@app.command(epilog="Example: chainspace overlay robot.mp4 fit/joint_angles.npz --out overlay.mp4 --side-by-side")
+@_guarded
+def overlay(
+    video: Annotated[Path, typer.Argument(help="The footage the result was computed from: a video file (MP4, "
+                                               "MOV, AVI) or a folder of numbered images.")],
+    result: Annotated[Path, typer.Argument(help="joint_angles.npz ('chainspace fit') or reconstruction.npz "
+                                                "('chainspace reconstruct').")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="The overlay video (.mp4).")] = Path("overlay.mp4"),
+    tracks: Annotated[Optional[Path], typer.Option(help="2D tracks to draw (any format load_tracks reads); "
+                                                        "default the ones the result was fitted to.")] = None,
+    side_by_side: Annotated[bool, typer.Option("--side-by-side", help="Add a 3D view beside every frame.")] = False,
+    fps: Annotated[Optional[float], typer.Option(help="Frame rate when VIDEO is a folder of images "
+                                                      "(default 30).")] = None,
+    progress: Annotated[bool, typer.Option(help="Show a progress bar on stderr.")] = True,
+    overwrite: Overwrite = False,
+) -> None:
+    """Draw a result over its footage: the fitted robot or reconstructed chain reprojected through the
+    result's camera (green), the tracks (orange crosses), each point's reprojection error (red lines) and
+    the frame's RMS error in pixels, on every frame."""
+    from .video.overlay import draw_overlay
+
+    _positive("--fps", fps)
+    _check_outputs([out], overwrite)
+    written = draw_overlay(video, result, tracks=tracks, out=out, side_by_side=side_by_side, overwrite=overwrite,
+                           progress=progress, fps=fps)
+    _say(f"wrote {written}")
+
 # Benchmark suites: candidates (module, function returning rows, function formatting them), first found wins.
 _SUITES = {
     "reconstruction": [("bench.reconstruction", "run_benchmark", "format_table")],
