@@ -181,8 +181,14 @@ def test_cli_overlay(weak, tmp_path):
     runner = CliRunner()
     res = runner.invoke(app, ["overlay", str(video), str(saved), "--out", str(out), "--side-by-side"])
     assert res.exit_code == 0, res.output
+    assert f"{F}/{F}" in res.output and "\r" not in res.output  # the progress bar as plain lines (no terminal)
     frames = _frames(out)
     assert frames.shape == (F, WEAK_SIZE[1], 2 * WEAK_SIZE[0], 3)
     assert _on_robot(frames[0, :, :WEAK_SIZE[0]], _frames(video)[0])[0] > 0.97  # the saved fit reloads whole
     again = runner.invoke(app, ["overlay", str(video), str(saved), "--out", str(out)])
     assert again.exit_code == 2 and "use --overwrite" in again.output
+
+
+def test_cli_overlay_help_has_an_example():
+    res = CliRunner().invoke(app, ["overlay", "--help"])
+    assert res.exit_code == 0 and "Example: chainspace overlay" in res.output

@@ -353,15 +353,16 @@ def draw_overlay(video: Any, result: Any, *, tracks: Any = None, out: str | os.P
         (``f9.png`` before ``f10.png``), or an opened video. It must have exactly as many frames as the
         result.
     result
-        A :class:`~chainspace.robot.result.JointFit` or a
-        :class:`~chainspace.reconstruction.pipeline.Reconstruction` (or the path of one saved by
-        ``chainspace fit`` / ``reconstruct``, read with :func:`~chainspace.io.results.load_results`).
+        A joint fit (:class:`~chainspace.robot.result.JointFit`) or a reconstruction
+        (:class:`~chainspace.reconstruction.pipeline.Reconstruction`), or the path of one saved by
+        ``chainspace fit`` / ``reconstruct`` (read with :func:`~chainspace.io.results.load_results`).
     tracks
         The 2D tracks to draw (F, J, 2) px, or a track file :func:`~chainspace.load_tracks` reads;
         default: the tracks the result was fitted to.
     out
         The output video (``.mp4``, ``.m4v``, ``.mov`` or ``.avi``; codec mp4v), written atomically. An
-        existing file is replaced only with ``overwrite=True``.
+        existing file is replaced only with ``overwrite=True``. MPEG-4 frames have even sizes: an odd
+        width or height loses its last column or row.
     side_by_side
         Add a 3D view panel of the video's size on the right (the output is twice as wide).
     progress
