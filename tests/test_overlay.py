@@ -147,7 +147,28 @@ def test_frame_count_mismatch_and_unreadable_video(weak, tmp_path):
         draw_overlay(broken, fit, out=tmp_path / "b.mp4", progress=False)
     with pytest.raises(DescriptionNotFoundError, match="no such video"):
         draw_overlay(tmp_path / "missing.mp4", fit, out=tmp_path / "c.mp4", progress=False)
+    with pytest.raises(TrackError, match=r"tracks have shape \(5, 9, 2\), expected \(6, 9, 2\)"):
+        draw_overlay(video, fit, tracks=tr.tracks[:5], out=tmp_path / "d.mp4", progress=False)
     assert sorted(os.listdir(tmp_path)) == ["broken.mp4", "frames"]  # nothing written
+
+
+def test_tracks_from_a_file(weak, tmp_path):
+    """tracks=FILE: those tracks are drawn, not the fit's own."""
+    from chainspace.io.tracks import save_tracks
+
+    tr, fit, video = weak
+    save_tracks(tmp_path / "t.csv", tr.tracks + [3.0, 4.0], fit.chain.joints)
+    own = _frames(draw_overlay(video, fit, out=tmp_path / "own.mp4", progress=False))[0]
+    moved = _frames(draw_overlay(video, fit, tracks=tmp_path / "t.csv", out=tmp_path / "moved.mp4",
+                                 progress=False))[0]
+
+    def orange_at(img, points):  # share of points where a cross is drawn (the crosses' centres)
+        u, v = np.round(points).astype(int).T
+        b, g, r = (img[v, u, k].astype(int) for k in range(3))
+        return np.mean((r > 180) & (b < 120) & (r - b > 100))
+
+    at = tr.tracks[0] + [3.0, 4.0]  # 5 px off the fitted tracks, off the + of their crosses
+    assert orange_at(moved, at) > 0.8 and orange_at(own, at) < 0.2
 
 
 def test_image_folder_in_numeric_order(weak, tmp_path):

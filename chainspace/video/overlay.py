@@ -346,6 +346,12 @@ def draw_overlay(video: Any, result: Any, *, tracks: Any = None, out: str | os.P
                  fps: float | None = None) -> Path:
     """Draw a result over every frame of its video and write an MP4; return its path.
 
+    Drawn per frame: bones and joints reprojected through the result's camera (green), the tracks
+    (orange crosses), a red line from each track to its reprojection, and the frame's RMS reprojection
+    error in pixels (confidence weighted). Raises :class:`~chainspace.errors.TrackError` when the video
+    cannot be read or its frame count differs from the result's, and
+    :class:`~chainspace.errors.OutputExistsError` when ``out`` exists and ``overwrite`` is False.
+
     Parameters
     ----------
     video
@@ -370,12 +376,6 @@ def draw_overlay(video: Any, result: Any, *, tracks: Any = None, out: str | os.P
     fps
         Frame rate of the output when ``video`` is a folder of images (default 30); a video file's own
         rate is kept.
-
-    Drawn per frame: bones and joints reprojected through the result's camera (green), the tracks
-    (orange crosses), a red line from each track to its reprojection, and the frame's RMS reprojection
-    error in pixels (confidence weighted). Raises :class:`~chainspace.errors.TrackError` when the video
-    cannot be read or its frame count differs from the result's, and
-    :class:`~chainspace.errors.OutputExistsError` when ``out`` exists and ``overwrite`` is False.
     """
     target = Path(out)
     if target.suffix.lower() not in _VIDEO_OUT_SUFFIXES:
