@@ -167,6 +167,9 @@ def _side_view(R0: np.ndarray) -> np.ndarray:
 
 def _scene(result: Any) -> _Scene:
     """The result's chain in pixels, seen by its own camera (module docstring)."""
+    if getattr(result, "chain", None) is None or not (hasattr(result, "q") or hasattr(result, "poses")):
+        raise TrackError(f"draw_overlay needs a JointFit or a Reconstruction (chainspace.load_results), not "
+                         f"{type(result).__name__}")
     chain = result.chain
     segments = np.array([[chain.joint_index(a), chain.joint_index(b)] for a, b in chain.links], int).reshape(-1, 2)
     confidence = getattr(result, "confidence", None)
@@ -179,19 +182,17 @@ def _scene(result: Any) -> _Scene:
         R0 = (np.asarray(result.camera_pose[0], float) if result.camera_pose is not None
               else _camera_rotation(result.cameras))
         return _Scene(uv, result.tracks, confidence, base, _side_view(R0), segments)
-    if hasattr(result, "poses") and hasattr(result, "cameras"):  # a Reconstruction
-        intrinsics = getattr(result, "intrinsics", None)
-        if intrinsics is not None and getattr(result, "points_camera", None) is not None:
-            uv = intrinsics.project(result.points_camera)
-            R0 = np.eye(3)  # the poses are in the camera's axes
-        else:
-            from ..cameras.weak import project
+    # a Reconstruction
+    intrinsics = getattr(result, "intrinsics", None)
+    if intrinsics is not None and getattr(result, "points_camera", None) is not None:
+        uv = intrinsics.project(result.points_camera)
+        R0 = np.eye(3)  # the poses are in the camera's axes
+    else:
+        from ..cameras.weak import project
 
-            uv = project(result.poses, result.cameras, result.translations)
-            R0 = _camera_rotation(np.asarray(result.cameras, float))
-        return _Scene(uv, result.tracks, confidence, np.asarray(result.poses, float), _side_view(R0), segments)
-    raise TrackError(f"draw_overlay needs a JointFit or a Reconstruction (chainspace.load_results), not "
-                     f"{type(result).__name__}")
+        uv = project(result.poses, result.cameras, result.translations)
+        R0 = _camera_rotation(np.asarray(result.cameras, float))
+    return _Scene(uv, result.tracks, confidence, np.asarray(result.poses, float), _side_view(R0), segments)
 
 
 def _tracks(tracks: Any, chain: Any, n_frames: int) -> tuple[np.ndarray, np.ndarray | None]:
