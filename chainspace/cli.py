@@ -593,8 +593,8 @@ def overlay(
     tracks: Annotated[Optional[Path], typer.Option(help="2D tracks to draw (any format load_tracks reads); "
                                                         "default the ones the result was fitted to.")] = None,
     side_by_side: Annotated[bool, typer.Option("--side-by-side", help="Add a 3D view beside every frame.")] = False,
-    fps: Annotated[Optional[float], typer.Option(help="Frame rate when VIDEO is a folder of images "
-                                                      "(default 30).")] = None,
+    fps: Annotated[Optional[float], typer.Option(help="Frame rate of the overlay; default the video's own, 30 "
+                                                      "for a folder of images.")] = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar on stderr.")] = True,
     overwrite: Overwrite = False,
 ) -> None:

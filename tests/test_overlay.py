@@ -215,3 +215,16 @@ def test_cli_overlay(weak, tmp_path):
 def test_cli_overlay_help_has_an_example():
     res = CliRunner().invoke(app, ["overlay", "--help"])
     assert res.exit_code == 0 and "Example: chainspace overlay" in res.output
+
+
+def test_side_view_is_level_and_a_quarter_turn_from_the_camera():
+    from chainspace.cameras.weak import rodrigues
+    from chainspace.video.overlay import _side_view
+
+    R0 = rodrigues(np.array([0.3, -0.5, 0.2]))  # a tilted camera: rows right, down, forward
+    for up in ([0.0, 0.0, 1.0], None):
+        V = _side_view(R0, up)
+        u = -R0[1] if up is None else np.array(up)
+        assert np.allclose(V @ V.T, np.eye(3)) and np.isclose(np.linalg.det(V), 1.0)
+        assert np.allclose(V[1], -u)  # level: the panel's down is the vertical
+        assert abs(V[2] @ R0[2]) < 1e-9  # looking across the camera's view direction

@@ -17,8 +17,9 @@ weak-perspective cameras (:func:`chainspace.cameras.weak.project`), or with intr
 ``points_camera`` through the pinhole camera, as :meth:`Reconstruction.reprojection_error` measures.
 
 ``side_by_side=True`` adds a panel of the video's size on the right: the 3D points drawn
-orthographically from a fixed viewpoint, the first frame's camera turned 90 degrees about the image's
-vertical axis (so the panel shows the depth that the footage cannot), one scale for the whole clip.
+orthographically from a fixed viewpoint, from the side: the first frame's camera turned a quarter turn
+about the vertical (a robot's base z axis; the image's vertical for a reconstruction) and made level, so
+that the panel shows the depth the footage cannot; one scale for the whole clip.
 
 Frames are streamed (one in memory at a time) and written as MP4 (``mp4v``) to a temporary file next to
 the output, renamed into place only once complete.
@@ -54,7 +55,6 @@ _PANEL = (40, 36, 32)
 _IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
 _VIDEO_OUT_SUFFIXES = {".mp4", ".m4v", ".mov", ".avi"}
 _SHIFT = 4  # cv2 drawing with 4 fractional bits: points are placed to 1/16 px, not rounded to whole pixels
-_SIDE_TURN_DEG = 90.0
 
 
 # ---------------------------------------------------------------------------------------- reading frames
@@ -158,11 +158,17 @@ def _camera_rotation(cameras: np.ndarray | None) -> np.ndarray:
     return complete_rotation(rows / np.linalg.norm(rows, axis=-1, keepdims=True))
 
 
-def _side_view(R0: np.ndarray) -> np.ndarray:
-    """R0 turned about the image's vertical axis: the panel looks at the chain from the side."""
-    a = np.radians(_SIDE_TURN_DEG)
-    Ry = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
-    return Ry @ R0
+def _side_view(R0: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
+    """The panel's rotation (rows: right, down, forward): the camera R0 (same rows) turned a quarter turn
+    about ``up`` (default the image's upward axis), looking level, so the panel shows the depth the footage
+    cannot."""
+    up = -R0[1] if up is None else np.asarray(up, float) / np.linalg.norm(up)
+    # the view direction made level; a camera looking straight down has none: its right axis then
+    level = [v - (v @ up) * up for v in (R0[2], R0[0])]
+    f = level[0] if np.linalg.norm(level[0]) > 1e-6 else level[1]
+    f = f / np.linalg.norm(f)
+    side = np.cross(up, f)
+    return np.array([np.cross(-up, side), -up, side])
 
 
 def _scene(result: Any) -> _Scene:
@@ -181,7 +187,7 @@ def _scene(result: Any) -> _Scene:
                              "there is nothing to draw over the footage")
         R0 = (np.asarray(result.camera_pose[0], float) if result.camera_pose is not None
               else _camera_rotation(result.cameras))
-        return _Scene(uv, result.tracks, confidence, base, _side_view(R0), segments)
+        return _Scene(uv, result.tracks, confidence, base, _side_view(R0, up=[0.0, 0.0, 1.0]), segments)  # z up
     # a Reconstruction
     intrinsics = getattr(result, "intrinsics", None)
     if intrinsics is not None and getattr(result, "points_camera", None) is not None:
@@ -252,12 +258,14 @@ def _draw_tracks(img: np.ndarray, tracks: np.ndarray, uv: np.ndarray, thick: int
 
 
 def _text(img: np.ndarray, text: str, row: int, thick: int) -> None:
+    """White text on a dark box (readable on any footage), at line ``row`` from the top left."""
     import cv2
 
     scale = 0.4 * thick
-    org = (4 * thick, int((row + 1) * 16 * thick))
-    cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 2 * thick + 1, cv2.LINE_AA)
-    cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, _TEXT, thick, cv2.LINE_AA)
+    (w, h), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)
+    x, y = 4 * thick, (row + 1) * (h + base + 6 * thick)
+    cv2.rectangle(img, (x - 2 * thick, y - h - 2 * thick), (x + w + 2 * thick, y + base), (0, 0, 0), -1)
+    cv2.putText(img, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, _TEXT, thick, cv2.LINE_AA)
 
 
 class _Panel:
@@ -279,7 +287,7 @@ class _Panel:
         img = np.empty((h, w, 3), np.uint8)
         img[:] = _PANEL
         _draw_chain(img, self.xy[f] * self.scale + self.offset, self.segments, thick)
-        _text(img, f"3D, camera turned {_SIDE_TURN_DEG:g} deg", 0, thick)
+        _text(img, "3D, side view", 0, thick)
         return img
 
 
@@ -375,8 +383,7 @@ def draw_overlay(video: Any, result: Any, *, tracks: Any = None, out: str | os.P
     progress
         A progress bar on stderr (plain lines when stderr is not a terminal).
     fps
-        Frame rate of the output when ``video`` is a folder of images (default 30); a video file's own
-        rate is kept.
+        Frame rate of the output; default the video file's own, 30 for a folder of images.
     """
     target = Path(out)
     if target.suffix.lower() not in _VIDEO_OUT_SUFFIXES:
