@@ -271,23 +271,21 @@ def _text(img: np.ndarray, text: str, row: int, thick: int) -> None:
 class _Panel:
     """The 3D view: every frame's points turned by ``view`` and drawn orthographically, one scale for the clip."""
 
-    def __init__(self, scene: _Scene, size: tuple[int, int]) -> None:
-        p = scene.points @ scene.view.T
-        self.xy = p[..., :2]
+    def __init__(self, scene: _Scene, size: tuple[int, int], thick: int) -> None:
+        self.xy = (scene.points @ scene.view.T)[..., :2]
         lo, hi = np.nanmin(self.xy, axis=(0, 1)), np.nanmax(self.xy, axis=(0, 1))
         w, h = size
         extent = np.maximum(hi - lo, 1e-12)
         self.scale = 0.8 * min(w / extent[0], h / extent[1])
         self.offset = np.array([w, h]) / 2 - self.scale * (lo + hi) / 2
-        self.size = size
-        self.segments = scene.segments
+        self.segments, self.thick = scene.segments, thick
+        self.background = np.empty((h, w, 3), np.uint8)
+        self.background[:] = _PANEL
+        _text(self.background, "3D, side view", 0, thick)
 
-    def draw(self, f: int, thick: int) -> np.ndarray:
-        w, h = self.size
-        img = np.empty((h, w, 3), np.uint8)
-        img[:] = _PANEL
-        _draw_chain(img, self.xy[f] * self.scale + self.offset, self.segments, thick)
-        _text(img, "3D, side view", 0, thick)
+    def draw(self, f: int) -> np.ndarray:
+        img = self.background.copy()  # a copy is cheaper than filling a new image every frame
+        _draw_chain(img, self.xy[f] * self.scale + self.offset, self.segments, self.thick)
         return img
 
 
@@ -411,7 +409,7 @@ def draw_overlay(video: Any, result: Any, *, tracks: Any = None, out: str | os.P
                          f"{camera_size[0]} x {camera_size[1]} px")
     rms = _rms_px(scene)
     thick = max(1, round(min(width, height) / 360))
-    panel = _Panel(scene, (width, height)) if side_by_side else None
+    panel = _Panel(scene, (width, height), thick) if side_by_side else None
     size = (2 * width if side_by_side else width, height)
     seen = 0
     with _video_writer(target, frames.fps, size, overwrite) as writer, _bar(n, progress) as bar:
@@ -424,7 +422,7 @@ def draw_overlay(video: Any, result: Any, *, tracks: Any = None, out: str | os.P
                                                    f"is {width} x {height}")
             img = np.ascontiguousarray(img)
             _draw_frame(img, scene, f, rms[f], thick)
-            writer.write(img if panel is None else np.hstack([img, panel.draw(f, thick)]))
+            writer.write(img if panel is None else np.hstack([img, panel.draw(f)]))
             seen += 1
             bar.update()
         if seen != n:
