@@ -581,7 +581,6 @@ def view(
         pass
 
 
-
 @app.command(epilog="Example: chainspace overlay robot.mp4 fit/joint_angles.npz --out overlay.mp4 --side-by-side")
 @_guarded
 def overlay(
@@ -608,6 +607,7 @@ def overlay(
     written = draw_overlay(video, result, tracks=tracks, out=out, side_by_side=side_by_side, overwrite=overwrite,
                            progress=progress, fps=fps)
     _say(f"wrote {written}")
+
 
 # Benchmark suites: candidates (module, function returning rows, function formatting them), first found wins.
 _SUITES = {
