@@ -149,6 +149,8 @@ def test_frame_count_mismatch_and_unreadable_video(weak, tmp_path):
         draw_overlay(tmp_path / "missing.mp4", fit, out=tmp_path / "c.mp4", progress=False)
     with pytest.raises(TrackError, match=r"tracks have shape \(5, 9, 2\), expected \(6, 9, 2\)"):
         draw_overlay(video, fit, tracks=tr.tracks[:5], out=tmp_path / "d.mp4", progress=False)
+    with pytest.raises(TrackError, match="fps must be a finite number > 0"):
+        draw_overlay(folder, fit, out=tmp_path / "f.mp4", fps=0.0, progress=False)
     with pytest.raises(TrackError, match="needs a JointFit or a Reconstruction"):
         draw_overlay(video, tr.tracks, out=tmp_path / "e.mp4", progress=False)
     assert sorted(os.listdir(tmp_path)) == ["broken.mp4", "frames"]  # nothing written

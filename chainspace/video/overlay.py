@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ChainspaceError, DescriptionNotFoundError, TrackError
+from ..errors import ChainspaceError, DescriptionNotFoundError, TrackError, is_real
 from ..io.results import check_writable
 
 __all__ = ["draw_overlay"]
@@ -387,6 +387,8 @@ def draw_overlay(video: Any, result: Any, *, tracks: Any = None, out: str | os.P
     if target.suffix.lower() not in _VIDEO_OUT_SUFFIXES:
         raise TrackError(f"{target}: the overlay is a video; give a name ending in "
                          f"{', '.join(sorted(_VIDEO_OUT_SUFFIXES))}")
+    if fps is not None and not (is_real(fps) and fps > 0):
+        raise TrackError(f"fps must be a finite number > 0 (frames per second), not {fps!r}")
     check_writable([target], overwrite)  # refuse before any work
     if isinstance(result, (str, os.PathLike)):
         from ..io.results import load_results
