@@ -160,7 +160,7 @@ def _progress(progress: bool | Callable[[int, int], None], total: int, label: st
     last = [0]
 
     def plain(done: int) -> None:
-        if done - last[0] >= step or done == total:
+        if done - last[0] >= step or (done == total and last[0] != total):
             last[0] = done
             print(f"{label}: {done}/{total} frames", file=sys.stderr, flush=True)
 
