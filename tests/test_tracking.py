@@ -200,3 +200,11 @@ def test_a_videos_tracks_go_straight_into_reconstruct(tmp_path, rng):
     # in the image, so their discs overlap and their tracks are the worst, about 1 px)
     ref = cs.reconstruct(trial.tracks, chain, intrinsics=trial.intrinsics)
     assert cs.error_3d(rec.poses, trial.positions) < cs.error_3d(ref.poses, trial.positions) + 0.02  # metres
+
+
+def test_the_documented_key_frame_example_loads():
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "docs" / "formats" / "examples" / "keyframes.json"
+    kf = load_keyframes(path, names=["base_link", "link_1", "link_2", "tool_tip"], image_size=(1920, 1080))
+    assert list(kf) == [0, 150] and kf[0]["link_2"] == (455.0, 402.25) and kf[150]["tool_tip"] is None
