@@ -40,8 +40,9 @@ class TrackResult:
     tracks : ndarray (F, J, 2)
         Image positions, pixels (x right, y down), NaN before a point's first key frame and where lost.
     confidence : ndarray (F, J)
-        In [0, 1]: 1 at key frames, ``1 - (e / fb_max_px)**2`` for a forward-backward error of ``e``
-        px, 0 where lost.
+        In [0, 1]: 1 at key frames; ``(1 - (e / fb_max_px)**2) * t`` for a forward-backward error of
+        ``e`` px and a texture factor ``t`` (low on plain surfaces and along edges, where points
+        slide: see ``texture_eig`` of :func:`track_points`); 0 where lost.
     names : list of str
         The points, in the order of the tracks' second axis (a chain's joints when a chain was given).
     fps : float
@@ -169,7 +170,7 @@ def _progress(progress: bool | Callable[[int, int], None], total: int, label: st
 
 def track_points(video: Video | str | os.PathLike, keyframes: str | os.PathLike | Mapping[Any, Any], *,
                  chain: Any = None, window: int = 21, levels: int = 3, fb_max_px: float = 1.0,
-                 fps: float | None = None, max_iter: int = 30, eps_px: float = 0.01,
+                 texture_eig: float = 0.02, fps: float | None = None, max_iter: int = 30, eps_px: float = 0.01,
                  progress: bool | Callable[[int, int], None] = False) -> TrackResult:
     """Track the points placed in ``keyframes`` through ``video``.
 
@@ -191,6 +192,11 @@ def track_points(video: Video | str | os.PathLike, keyframes: str | os.PathLike 
         ``window / 2 * 2**levels`` px per frame are followed.
     fb_max_px
         A point whose forward-then-backward track misses its start by more than this is lost, pixels.
+    texture_eig
+        How much texture a patch needs for a confident track: the confidence's texture factor
+        ``e / (e + texture_eig)`` is 1/2 where the smallest eigenvalue ``e`` of the patch's gradient
+        matrix (OpenCV's normalised value, 8-bit images) equals it. Random texture gives 0.01 to 0.2,
+        a straight edge 0.001 to 0.006, a plain surface 0 (lost).
     fps
         Frame rate for an image folder (or replacing a file's).
     max_iter, eps_px
@@ -208,6 +214,8 @@ def track_points(video: Video | str | os.PathLike, keyframes: str | os.PathLike 
     import cv2
 
     _check_options(window, levels, fb_max_px)
+    if not (is_real(texture_eig) and texture_eig >= 0):
+        raise VideoError(f"texture_eig must be a finite number >= 0, not {texture_eig!r}")
     own = not isinstance(video, Video)
     vid = open_video(video, fps) if own else video
     try:
@@ -219,7 +227,8 @@ def track_points(video: Video | str | os.PathLike, keyframes: str | os.PathLike 
             warnings.warn(f"no key frame places {', '.join(never)}: their tracks are empty (NaN)", stacklevel=2)
         index = {n: j for j, n in enumerate(names)}
         t0 = time.perf_counter()
-        tracks, conf, drift = _run(vid, kf, index, window, levels, fb_max_px, max_iter, eps_px, progress, cv2)
+        tracks, conf, drift = _run(vid, kf, index, window, levels, fb_max_px, texture_eig, max_iter, eps_px,
+                                     progress, cv2)
         seconds = time.perf_counter() - t0
     finally:
         if own:
@@ -228,7 +237,7 @@ def track_points(video: Video | str | os.PathLike, keyframes: str | os.PathLike 
 
 
 def _run(vid: Video, kf: Keyframes, index: dict[str, int], window: int, levels: int, fb_max_px: float,
-         max_iter: int, eps_px: float, progress: Any, cv2: Any
+         texture_eig: float, max_iter: int, eps_px: float, progress: Any, cv2: Any
          ) -> tuple[np.ndarray, np.ndarray, dict[int, dict[str, float]]]:
     F, J = vid.frame_count, len(index)
     w, h = vid.size
@@ -250,7 +259,10 @@ def _run(vid: Video, kf: Keyframes, index: dict[str, int], window: int, levels: 
             if prev is not None and alive.any():
                 idx = np.flatnonzero(alive)
                 p0 = pts[idx].reshape(-1, 1, 2)
-                p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev, gray, p0, None, **lk)
+                # the forward step also returns each patch's smallest gradient eigenvalue: low on plain
+                # surfaces and along edges, where LK slides (the aperture problem) without failing
+                p1, st1, eig = cv2.calcOpticalFlowPyrLK(prev, gray, p0, None, flags=cv2.OPTFLOW_LK_GET_MIN_EIGENVALS,
+                                                        **lk)
                 back, st2, _ = cv2.calcOpticalFlowPyrLK(gray, prev, p1, None, **lk)
                 p1, back = p1.reshape(-1, 2), back.reshape(-1, 2)
                 fb = np.linalg.norm(back - p0.reshape(-1, 2), axis=1)
@@ -259,7 +271,8 @@ def _run(vid: Video, kf: Keyframes, index: dict[str, int], window: int, levels: 
                 ok &= np.isfinite(p1).all(axis=1)
                 pts[idx] = p1
                 alive[idx] = ok
-                weight[idx] = np.where(ok, 1.0 - (fb / fb_max_px) ** 2, 0.0)
+                eig = np.nan_to_num(eig.ravel())
+                weight[idx] = np.where(ok, (1.0 - (fb / fb_max_px) ** 2) * eig / np.maximum(eig + texture_eig, 1e-12), 0.0)
             if f in kf:
                 _anchor(f, kf[f], index, pts, alive, weight, drift, first)
             tracks[f, alive] = pts[alive]
