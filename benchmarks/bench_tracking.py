@@ -5,11 +5,11 @@ sticker or a cast surface looks) that move along smooth curves and rotate; and o
 (a painted robot link: no texture), whose centre shows drift. The clip is written as MP4 ('mp4v',
 as a phone or webcam would compress it) and tracked from it, decoding included in the time. Key
 frames with the true positions every ``--every`` frames re-anchor the tracks; the drift at each
-re-anchor is reported.
+re-anchor is reported. ``--lk-only`` adds runs without the ECC refinement (Lucas-Kanade steps alone).
 
     .venv/bin/python benchmarks/bench_tracking.py                      # 640x480 and 1920x1080, 300 frames
     .venv/bin/python benchmarks/bench_tracking.py --sizes 640x480 --frames 120 --window 11 21
-    .venv/bin/python benchmarks/bench_tracking.py --plot docs/_static/tracking_errors.png
+    .venv/bin/python benchmarks/bench_tracking.py --window 21 41 --lk-only --plot docs/_static/tracking_errors.png
 
 Prints a table: frames/s of the tracking stage, RMS and 95th-percentile error against the truth (px,
 over the tracked frames: key frames excluded), lost fraction, and the largest drift at a re-anchor,
@@ -90,16 +90,17 @@ def make_scene(path: Path, width: int, height: int, n_frames: int, fps: float = 
     return truth, names, kinds
 
 
-def run(width: int, height: int, n_frames: int, every: int, folder: Path, window: int = 21) -> list[dict]:
+def run(width: int, height: int, n_frames: int, every: int, folder: Path, window: int = 21,
+        refine: bool = True) -> list[dict]:
     from chainspace.video.tracking import track_points
 
     video = folder / f"scene_{width}x{height}.mp4"
     truth, names, kinds = make_scene(video, width, height, n_frames)
     keyframes = {str(f): {n: truth[f, j].tolist() for j, n in enumerate(names)}
                  for f in range(0, n_frames, every)}
-    t0 = time.perf_counter()
-    result = track_points(video, keyframes, window=window)
-    seconds = time.perf_counter() - t0
+    t0, c0 = time.perf_counter(), time.process_time()
+    result = track_points(video, keyframes, window=window, refine=refine)
+    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
     err = np.linalg.norm(result.tracks - truth[: result.n_frames], axis=2)
     err[list(range(0, n_frames, every))] = np.nan  # key frames are given, not tracked
     rows = []
@@ -112,6 +113,7 @@ def run(width: int, height: int, n_frames: int, every: int, folder: Path, window
         drift = [d for pts in result.drift.values() for n, d in pts.items() if names.index(n) in cols]
         rows.append({"size": f"{width}x{height}", "window": window, "points": label, "n": len(cols),
                      "frames": result.n_frames, "fps": result.n_frames / seconds,
+                     "fps_cpu": result.n_frames / cpu, "refine": refine,
                      "rms_px": float(np.sqrt(np.mean(e[seen] ** 2))) if seen.any() else float("nan"),
                      "p95_px": float(np.percentile(e[seen], 95)) if seen.any() else float("nan"),
                      "lost": float(1 - seen[tracked_frames].mean()),
@@ -139,7 +141,8 @@ def plot_errors(rows: list[dict], path: Path) -> None:
         for f in anchors:
             ax.axvline(f, color="grey", ls=":", lw=1)
         ax.set_ylabel("error (px)")
-        ax.set_title(f"{r['size']}, window {r['window']} px (dotted: key frames; a gap: lost)", fontsize=9)
+        how = "ECC refined" if r["refine"] else "LK only"
+        ax.set_title(f"{r['size']}, window {r['window']} px, {how} (dotted: key frames; a gap: lost)", fontsize=9)
     axes[-1, 0].set_xlabel("frame")
     axes[0, 0].legend(fontsize=7, ncol=3)
     fig.tight_layout()
@@ -148,7 +151,7 @@ def plot_errors(rows: list[dict], path: Path) -> None:
 
 
 def format_table(rows: list[dict], every: int) -> str:
-    lines = [f"| video | points | frames/s (tracking, decoding included) | RMS error px | 95th pct px | lost | "
+    lines = [f"| video | points | frames/s (tracking, decoding included; per CPU-second) | RMS error px | 95th pct px | lost | "
              f"mean confidence where tracked | largest drift at a re-anchor (every {every} frames) px |",
              "|---|---|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
@@ -156,8 +159,9 @@ def format_table(rows: list[dict], every: int) -> str:
             f" ({r['drift_lost']} lost before)" if r["drift_lost"] else "")
         conf = "-" if np.isnan(r["confidence"]) else f"{r['confidence']:.2f}"
         rms, p95 = (("-", "-") if np.isnan(r["rms_px"]) else (f"{r['rms_px']:.2f}", f"{r['p95_px']:.2f}"))
-        lines.append(f"| {r['size']}, {r['frames']} frames, window {r['window']} | {r['n']} {r['points']} | "
-                     f"{r['fps']:.0f} | {rms} | {p95} | {100 * r['lost']:.1f}% | {conf} | {drift} |")
+        how = f"window {r['window']}" + (", ECC refined" if r["refine"] else ", LK only")
+        lines.append(f"| {r['size']}, {r['frames']} frames, {how} | {r['n']} {r['points']} | "
+                     f"{r['fps']:.0f} ({r['fps_cpu']:.0f}) | {rms} | {p95} | {100 * r['lost']:.1f}% | {conf} | {drift} |")
     return "\n".join(lines)
 
 
@@ -168,6 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--every", type=int, default=100, help="a key frame (true positions) every N frames")
     ap.add_argument("--window", type=int, nargs="*", default=[21], help="patch side(s) of the tracker, px")
     ap.add_argument("--plot", type=Path, help="write the error over the frames as a PNG")
+    ap.add_argument("--lk-only", action="store_true", help="also run without the ECC refinement")
     args = ap.parse_args(argv)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -175,7 +180,8 @@ def main(argv: list[str] | None = None) -> int:
             w, h = (int(v) for v in size.lower().split("x"))
             print(f"tracking {size}, {args.frames} frames ...", file=sys.stderr, flush=True)
             for window in args.window:
-                rows += run(w, h, args.frames, args.every, Path(tmp), window)
+                for refine in (True, False) if args.lk_only else (True,):
+                    rows += run(w, h, args.frames, args.every, Path(tmp), window, refine)
     print(f"load average {' '.join(f'{v:.2f}' for v in os.getloadavg())} on {os.cpu_count()} cores")
     print(format_table(rows, args.every))
     if args.plot:

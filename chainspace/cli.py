@@ -758,6 +758,8 @@ def track(
     levels: Annotated[int, typer.Option(help="Pyramid levels above the full image.")] = 3,
     fb_max_px: Annotated[float, typer.Option("--fb-max-px", help="Forward-backward error beyond which a "
                                                                  "point is lost, px.")] = 1.0,
+    refine: Annotated[bool, typer.Option(help="Align each point's key-frame patch to every frame (rotation "
+                                              "and shift, ECC) after the LK step.")] = True,
     progress: Annotated[bool, typer.Option(help="Show progress on stderr.")] = True,
     overwrite: Overwrite = False,
 ) -> None:
@@ -772,7 +774,7 @@ def track(
     _positive("--fps", fps)
     _positive("--fb-max-px", fb_max_px)
     result = track_video(video, points, out, chain=chain, fps=fps, overwrite=overwrite, progress=progress,
-                         window=window, levels=levels, fb_max_px=fb_max_px)
+                         window=window, levels=levels, fb_max_px=fb_max_px, refine=refine)
     _say(f"wrote {out}")
     for frame, drift in result.drift.items():
         cells = ", ".join(f"{n} {d:.2f} px" if np.isfinite(d) else f"{n} lost before" for n, d in drift.items())

@@ -3,7 +3,9 @@
 The user places the points in one or more key frames (:mod:`chainspace.video.keyframes`). From the
 first key frame on, every point is carried from frame to frame by OpenCV's pyramidal Lucas-Kanade
 (:func:`cv2.calcOpticalFlowPyrLK`), which matches the ``window`` x ``window`` patch around the point.
-Each step is checked by tracking back to the previous frame: a point that does not come back within
+Each step is then refined by aligning the point's patch from its key frame (rotation and shift,
+OpenCV's ECC), so that frame-to-frame errors do not add up where the surface keeps its look. Each
+step is checked by tracking back to the previous frame: a point that does not come back within
 ``fb_max_px`` (or that leaves the image) is lost, NaN with confidence 0, until a later key frame places
 it again. A later key frame re-anchors the points it gives; the distance between where the tracker had
 carried a point and where the key frame puts it is the drift accumulated since the previous anchor,
@@ -171,7 +173,7 @@ def _progress(progress: bool | Callable[[int, int], None], total: int, label: st
 def track_points(video: Video | str | os.PathLike, keyframes: str | os.PathLike | Mapping[Any, Any], *,
                  chain: Any = None, window: int = 21, levels: int = 3, fb_max_px: float = 1.0,
                  texture_eig: float = 0.02, fps: float | None = None, max_iter: int = 30, eps_px: float = 0.01,
-                 progress: bool | Callable[[int, int], None] = False) -> TrackResult:
+                 refine: bool = True, progress: bool | Callable[[int, int], None] = False) -> TrackResult:
     """Track the points placed in ``keyframes`` through ``video``.
 
     Parameters
@@ -201,6 +203,12 @@ def track_points(video: Video | str | os.PathLike, keyframes: str | os.PathLike 
         Frame rate for an image folder (or replacing a file's).
     max_iter, eps_px
         Lucas-Kanade's stopping rule per pyramid level: iterations, and update size in pixels.
+    refine
+        After each Lucas-Kanade step, align the point's patch from its last key frame to the frame
+        (rotation and shift, OpenCV's ECC), starting from the LK position. Frame-to-frame steps add up
+        small errors (a rotating patch biases LK's translation); the key-frame patch does not. Where
+        the patch no longer matches (correlation below 0.8, or more than ``max(2, window / 4)`` px
+        from the LK position: a turned or occluded surface) the LK position stands.
     progress
         True: a progress bar on stderr (plain lines when it is not a terminal); a function
         ``progress(done, total)``; False: quiet.
@@ -228,7 +236,7 @@ def track_points(video: Video | str | os.PathLike, keyframes: str | os.PathLike 
         index = {n: j for j, n in enumerate(names)}
         t0 = time.perf_counter()
         tracks, conf, drift = _run(vid, kf, index, window, levels, fb_max_px, texture_eig, max_iter, eps_px,
-                                     progress, cv2)
+                                     progress, cv2, refine)
         seconds = time.perf_counter() - t0
     finally:
         if own:
@@ -237,7 +245,7 @@ def track_points(video: Video | str | os.PathLike, keyframes: str | os.PathLike 
 
 
 def _run(vid: Video, kf: Keyframes, index: dict[str, int], window: int, levels: int, fb_max_px: float,
-         texture_eig: float, max_iter: int, eps_px: float, progress: Any, cv2: Any
+         texture_eig: float, max_iter: int, eps_px: float, progress: Any, cv2: Any, refine: bool = False
          ) -> tuple[np.ndarray, np.ndarray, dict[int, dict[str, float]]]:
     F, J = vid.frame_count, len(index)
     w, h = vid.size
@@ -253,6 +261,8 @@ def _run(vid: Video, kf: Keyframes, index: dict[str, int], window: int, levels: 
     first = min(kf)
     prev = None
     done = first
+    templates: list[Any] = [None] * J
+    angles = np.zeros(J)
     with _progress(progress, F, f"tracking {J} points") as report:
         for f, image in enumerate(vid.frames(first), start=first):
             gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
@@ -273,8 +283,15 @@ def _run(vid: Video, kf: Keyframes, index: dict[str, int], window: int, levels: 
                 alive[idx] = ok
                 eig = np.nan_to_num(eig.ravel())
                 weight[idx] = np.where(ok, (1.0 - (fb / fb_max_px) ** 2) * eig / np.maximum(eig + texture_eig, 1e-12), 0.0)
+                if refine:
+                    _refine(gray, idx[ok], pts, templates, angles, window, cv2)
             if f in kf:
                 _anchor(f, kf[f], index, pts, alive, weight, drift, first)
+                if refine:
+                    for name, xy in kf[f].items():
+                        j = index[name]
+                        templates[j] = None if xy is None else cv2.getRectSubPix(gray, win, tuple(map(float, xy)))
+                        angles[j] = 0.0
             tracks[f, alive] = pts[alive]
             conf[f, alive] = np.clip(weight[alive], 0.0, 1.0)
             prev = gray
@@ -285,6 +302,35 @@ def _run(vid: Video, kf: Keyframes, index: dict[str, int], window: int, levels: 
     if done < F:  # the file held fewer frames than its header said
         tracks, conf = tracks[:done], conf[:done]
     return tracks, conf, drift
+
+
+def _refine(gray: np.ndarray, idx: np.ndarray, pts: np.ndarray, templates: list, angles: np.ndarray,
+            window: int, cv2: Any, min_cc: float = 0.8) -> None:
+    """Align each point's key-frame patch to this frame (rotation and shift, OpenCV's ECC) from the
+    LK position: frame-to-frame steps add up small errors (rotation biases LK's translation), the
+    key-frame patch does not. Points whose patch no longer matches keep the LK position."""
+    h, w = gray.shape
+    c = (window - 1) / 2
+    for j in idx:
+        if templates[j] is None:
+            continue
+        x, y = pts[j]
+        ox, oy = int(round(x)) - window, int(round(y)) - window
+        if ox < 0 or oy < 0 or ox + 2 * window + 1 > w or oy + 2 * window + 1 > h:
+            continue
+        roi = gray[oy:oy + 2 * window + 1, ox:ox + 2 * window + 1]
+        a = angles[j]
+        R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        warp = np.hstack([R, (np.array([x - ox, y - oy]) - R @ [c, c])[:, None]]).astype(np.float32)
+        try:
+            cc, warp = cv2.findTransformECC(templates[j], roi, warp, cv2.MOTION_EUCLIDEAN,
+                                            (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-4), None, 1)
+        except cv2.error:
+            continue
+        p = warp[:, :2] @ [c, c] + warp[:, 2] + [ox, oy]
+        if cc >= min_cc and np.hypot(*(p - pts[j])) <= max(2.0, window / 4):
+            pts[j] = p
+            angles[j] = np.arctan2(warp[1, 0], warp[0, 0])
 
 
 def _anchor(f: int, points: dict[str, tuple[float, float] | None], index: dict[str, int], pts: np.ndarray,
