@@ -1,8 +1,9 @@
 """Point tracking in video (chainspace.track_points) on a generated scene with known point motion.
 
 The scene: a static textured background; four textured square plates (smoothed random noise, as a
-sticker or a cast surface looks) that move along smooth curves and rotate; and one plain grey plate
-(a painted robot link: no texture), whose centre shows drift. The clip is written as MP4 ('mp4v',
+sticker or a cast surface looks) that move along smooth curves and rotate; and one plain shaded plate
+(a painted robot link: no texture) with a point in its middle (nothing to track: lost at once) and
+one just inside its edge (the edge holds it across, nothing along it: it slides, which is drift). The clip is written as MP4 ('mp4v',
 as a phone or webcam would compress it) and tracked from it, decoding included in the time. Key
 frames with the true positions every ``--every`` frames re-anchor the tracks; the drift at each
 re-anchor is reported. ``--lk-only`` adds runs without the ECC refinement (Lucas-Kanade steps alone).
