@@ -3,10 +3,10 @@
 The scene: a static textured background; four textured square plates (smoothed random noise, as a
 sticker or a cast surface looks) that move along smooth curves and rotate; and one plain shaded plate
 (a painted robot link: no texture) with a point in its middle (nothing to track: lost at once) and
-one just inside its edge (the edge holds it across, nothing along it: it slides, which is drift). The clip is written as MP4 ('mp4v',
-as a phone or webcam would compress it) and tracked from it, decoding included in the time. Key
-frames with the true positions every ``--every`` frames re-anchor the tracks; the drift at each
-re-anchor is reported. ``--lk-only`` adds runs without the ECC refinement (Lucas-Kanade steps alone).
+one just inside its edge (the edge holds it across, nothing along it: it slides, which is drift).
+The clip is written as MP4 ('mp4v', as a phone or webcam would compress it) and tracked from it,
+decoding included in the time. Key frames with the true positions every ``--every`` frames
+re-anchor the tracks; the drift at each re-anchor is reported. ``--lk-only`` adds runs without the ECC refinement (Lucas-Kanade steps alone).
 
     .venv/bin/python benchmarks/bench_tracking.py                      # 640x480 and 1920x1080, 300 frames
     .venv/bin/python benchmarks/bench_tracking.py --sizes 640x480 --frames 120 --window 11 21
@@ -152,7 +152,8 @@ def plot_errors(rows: list[dict], path: Path) -> None:
 
 
 def format_table(rows: list[dict], every: int) -> str:
-    lines = [f"| video | points | frames/s (tracking, decoding included; per CPU-second) | RMS error px | 95th pct px | lost | "
+    lines = [f"| video | points | frames/s (tracking, decoding included; per CPU-second) | RMS error px | "
+             f"95th pct px | lost | "
              f"mean confidence where tracked | largest drift at a re-anchor (every {every} frames) px |",
              "|---|---|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
@@ -162,7 +163,8 @@ def format_table(rows: list[dict], every: int) -> str:
         rms, p95 = (("-", "-") if np.isnan(r["rms_px"]) else (f"{r['rms_px']:.2f}", f"{r['p95_px']:.2f}"))
         how = f"window {r['window']}" + (", ECC refined" if r["refine"] else ", LK only")
         lines.append(f"| {r['size']}, {r['frames']} frames, {how} | {r['n']} {r['points']} | "
-                     f"{r['fps']:.0f} ({r['fps_cpu']:.0f}) | {rms} | {p95} | {100 * r['lost']:.1f}% | {conf} | {drift} |")
+                     f"{r['fps']:.0f} ({r['fps_cpu']:.0f}) | {rms} | {p95} | {100 * r['lost']:.1f}% | {conf} | "
+                     f"{drift} |")
     return "\n".join(lines)
 
 

@@ -282,7 +282,8 @@ def _run(vid: Video, kf: Keyframes, index: dict[str, int], window: int, levels: 
                 pts[idx] = p1
                 alive[idx] = ok
                 eig = np.nan_to_num(eig.ravel())
-                weight[idx] = np.where(ok, (1.0 - (fb / fb_max_px) ** 2) * eig / np.maximum(eig + texture_eig, 1e-12), 0.0)
+                texture = eig / np.maximum(eig + texture_eig, 1e-12)
+                weight[idx] = np.where(ok, (1.0 - (fb / fb_max_px) ** 2) * texture, 0.0)
                 if refine:
                     _refine(gray, idx[ok], pts, templates, angles, window, cv2)
             if f in kf:
