@@ -10,7 +10,8 @@ re-anchor the tracks; the drift at each re-anchor is reported. ``--lk-only`` add
 
     .venv/bin/python benchmarks/bench_tracking.py                      # 640x480 and 1920x1080, 300 frames
     .venv/bin/python benchmarks/bench_tracking.py --sizes 640x480 --frames 120 --window 11 21
-    .venv/bin/python benchmarks/bench_tracking.py --window 21 41 --lk-only --plot docs/_static/tracking_errors.png
+    .venv/bin/python benchmarks/bench_tracking.py --window 21 41 --lk-only   # the table in docs/benchmarks.md
+    .venv/bin/python benchmarks/bench_tracking.py --lk-only --plot docs/_static/tracking_errors.png
 
 Prints a table: frames/s of the tracking stage, RMS and 95th-percentile error against the truth (px,
 over the tracked frames: key frames excluded), lost fraction, and the largest drift at a re-anchor,
@@ -134,7 +135,7 @@ def plot_errors(rows: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     runs = [r for r in rows if "curves" in r]
-    fig, axes = plt.subplots(len(runs), 1, figsize=(8, 2.6 * len(runs)), squeeze=False, sharex=True)
+    fig, axes = plt.subplots(len(runs), 1, figsize=(8, 2.2 * len(runs)), squeeze=False, sharex=True)
     for ax, r in zip(axes[:, 0], runs, strict=True):
         names, err, anchors = r["curves"]
         for j, name in enumerate(names):
@@ -147,7 +148,7 @@ def plot_errors(rows: list[dict], path: Path) -> None:
     axes[-1, 0].set_xlabel("frame")
     axes[0, 0].legend(fontsize=7, ncol=3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=80)
     plt.close(fig)
 
 
