@@ -58,8 +58,8 @@ class Video:
         if the file holds fewer).
 
     Iterating gives every frame in order; :meth:`frames` gives a range; :meth:`frame` one frame.
-    Frames are BGR ``uint8`` arrays (height, width, 3). Use it as a context manager (``with
-    open_video(p) as video:``) or call :meth:`close` to release the decoders it holds.
+    Frames are BGR ``uint8`` arrays (height, width, 3). Use it as a context manager
+    (``with open_video(p) as video:``) or call :meth:`close` to release the decoders it holds.
     """
 
     def __init__(self, path: Path, fps: float, size: tuple[int, int], frame_count: int,
