@@ -71,12 +71,13 @@ def test_a_later_key_frame_re_anchors_and_reports_the_drift(tmp_path, rng):
     # frame 3: "a" is placed 2 px right of where it is (a user's imprecise click), "b" (lost past
     # the edge) comes back, and "c" is given up as hidden
     kf = {"0": {"a": [40.0, 50.0], "b": [150.0, 60.0], "c": [60.0, 30.0]},
-          "3": {"a": [40.0 + 18 + 2, 53.0], "b": [100.0, 80.0], "c": None}}
+          "3": {"a": [40.0 + 18 + 2, 53.0], "b": [100.0, 80.0], "c": None, "d": [30.0, 90.0]}}
     result = track_points(d, kf, fps=30, window=11)
     a, b, c = result.tracks[:, 0], result.tracks[:, 1], result.tracks[:, 2]
     assert result.drift[3]["a"] == pytest.approx(2.0, abs=0.1)
     assert np.isnan(result.drift[3]["b"])  # lost before the re-anchor: no drift to measure
-    assert "c" not in result.drift[3]
+    assert "c" not in result.drift[3] and "d" not in result.drift[3]  # hidden; placed for the first time
+    assert np.isnan(result.tracks[:3, 3]).all() and np.isfinite(result.tracks[3:, 3]).all()
     np.testing.assert_allclose(a[3], [60.0, 53.0], atol=1e-4)  # the key frame wins
     np.testing.assert_allclose(a[4:] - a[3], shifts[4:] - shifts[3], atol=0.1)  # tracked on from there
     assert np.isnan(b[2, 0]) and np.isfinite(b[3:]).all()

@@ -54,8 +54,9 @@ class TrackResult:
         :meth:`camera`) for the pinhole camera of :func:`chainspace.reconstruct` and
         :func:`chainspace.fit_joint_angles`.
     drift : dict
-        ``{frame: {name: px}}`` at each key frame after the first: the distance between the tracked
-        position and the one the key frame gives, NaN where the point had been lost before.
+        ``{frame: {name: px}}`` at each key frame that places a point again: the distance between the
+        tracked position and the one the key frame gives, NaN where the point had been lost (or
+        hidden) before.
     keyframes : dict
         The key frames used (frame -> name -> (x, y) or None).
     source : Path or None
@@ -254,6 +255,7 @@ def _run(vid: Video, kf: Keyframes, index: dict[str, int], window: int, levels: 
     drift: dict[int, dict[str, float]] = {}
     pts = np.zeros((J, 2), np.float32)
     alive = np.zeros(J, bool)
+    placed = np.zeros(J, bool)  # given by a key frame so far
     weight = np.zeros(J)
     win = (window, window)
     lk = dict(winSize=win, maxLevel=levels,
@@ -287,7 +289,7 @@ def _run(vid: Video, kf: Keyframes, index: dict[str, int], window: int, levels: 
                 if refine:
                     _refine(gray, idx[ok], pts, templates, angles, window, cv2)
             if f in kf:
-                _anchor(f, kf[f], index, pts, alive, weight, drift, first)
+                _anchor(f, kf[f], index, pts, alive, weight, drift, placed)
                 if refine:
                     for name, xy in kf[f].items():
                         j = index[name]
@@ -335,7 +337,7 @@ def _refine(gray: np.ndarray, idx: np.ndarray, pts: np.ndarray, templates: list,
 
 
 def _anchor(f: int, points: dict[str, tuple[float, float] | None], index: dict[str, int], pts: np.ndarray,
-            alive: np.ndarray, weight: np.ndarray, drift: dict[int, dict[str, float]], first: int) -> None:
+            alive: np.ndarray, weight: np.ndarray, drift: dict[int, dict[str, float]], placed: np.ndarray) -> None:
     """Place the key frame's points; measure how far the tracker had carried them from there."""
     measured: dict[str, float] = {}
     for name, xy in points.items():
@@ -343,8 +345,9 @@ def _anchor(f: int, points: dict[str, tuple[float, float] | None], index: dict[s
         if xy is None:
             alive[j] = False
             continue
-        if f > first:
+        if placed[j]:  # a point given for the first time has no drift to measure
             measured[name] = float(np.hypot(*(pts[j] - xy))) if alive[j] else float("nan")
+        placed[j] = True
         pts[j] = xy
         alive[j] = True
         weight[j] = 1.0
