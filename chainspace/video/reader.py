@@ -105,6 +105,8 @@ class Video:
         stop = self.frame_count if stop is None else min(int(stop), self.frame_count)
         if start < 0:
             raise VideoError(f"{self.path}: the first frame must be >= 0, not {start}")
+        if start >= stop:
+            return iter(())
         if self._images is not None:
             return self._image_frames(start, stop)
         return self._video_frames(start, stop)
@@ -182,6 +184,10 @@ def _open_file(path: Path, fps: Any) -> Video:
             raise VideoError(f"{path}: the video holds no readable frame (corrupt or empty)")
         count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
         rate = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+        if count <= 0:  # a stream without a frame count in its header: count by reading through it once
+            count = 1
+            while cap.grab():
+                count += 1
     finally:
         cap.release()
     if fps is not None:
@@ -189,7 +195,7 @@ def _open_file(path: Path, fps: Any) -> Video:
     elif not (np.isfinite(rate) and rate > 0):
         raise VideoError(f"{path}: the video does not say its frame rate; give fps (--fps N)")
     h, w = first.shape[:2]
-    return Video(path, rate, (int(w), int(h)), max(count, 1))
+    return Video(path, rate, (int(w), int(h)), count)
 
 
 def open_video(path: str | os.PathLike, fps: float | None = None) -> Video:
