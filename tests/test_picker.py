@@ -82,8 +82,9 @@ def _driver(tmp_path):
 def test_clicks_in_a_browser_give_the_clicked_pixels(frames, tmp_path):
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import Select
 
-    page = write_picker(frames, tmp_path / "pick.html", [0], names=["base", "elbow", "tip"])
+    page = write_picker(frames, tmp_path / "pick.html", [0], names=["base", "elbow", "tip", "tool"])
     driver = _driver(tmp_path)
     try:
         driver.get(page.resolve().as_uri())
@@ -111,10 +112,17 @@ def test_clicks_in_a_browser_give_the_clicked_pixels(frames, tmp_path):
         assert current() == "elbow"
         expected["elbow"] = click(int(rect[0]) + 151, int(rect[1]) + 97)
         driver.find_element(By.ID, "skip").click()  # the tip is not visible
+        # zoomed to 200 %: another CSS scale, the same image pixels
+        Select(driver.find_element(By.ID, "zoom")).select_by_value("2")
+        rect = driver.execute_script("const r = arguments[0].getBoundingClientRect();"
+                                     "return [r.left, r.top, r.width, r.height];", img)
+        scale = rect[2] / SIZE[0]
+        assert scale == pytest.approx(2.0)
+        expected["tool"] = click(int(rect[0]) + 301, int(rect[1]) + 211)
         keyframes = json.loads(driver.find_element(By.ID, "json").get_attribute("value"))
     finally:
         driver.quit()
-    assert list(keyframes) == ["0"] and list(keyframes["0"]) == ["base", "elbow"]
+    assert list(keyframes) == ["0"] and list(keyframes["0"]) == ["base", "elbow", "tool"]
     for name, xy in expected.items():
         np.testing.assert_allclose(keyframes["0"][name], xy, atol=0.006)  # rounded to 0.01 px
     # what the page writes is what `chainspace track` reads
