@@ -24,6 +24,7 @@ _EXPORTS: dict[str, str] = {
     "DescriptionNotFoundError": "errors",
     "TrackError": "errors",
     "CameraError": "errors",
+    "VideoError": "errors",
     "OutputExistsError": "errors",
     "ConvergenceWarning": "errors",
     # the chain and its descriptions
@@ -78,6 +79,14 @@ _EXPORTS: dict[str, str] = {
     "write_html": "view.viewer",
     "show": "view.viewer",
     "draw_overlay": "video.overlay",
+    # video: reading frames, key frames, tracking points
+    "open_video": "video.reader",
+    "Video": "video.reader",
+    "load_keyframes": "video.keyframes",
+    "track_points": "video.tracking",
+    "track_video": "video.tracking",
+    "TrackResult": "video.tracking",
+    "write_picker": "video.picker",
     # many recordings at once, on Dask
     "run_batch": "batch",
     "read_manifest": "batch",
@@ -109,4 +118,5 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
         DescriptionNotFoundError,
         OutputExistsError,
         TrackError,
+        VideoError,
     )

@@ -771,6 +771,73 @@ def batch(
                     "failed validation (see the summary)", EXIT_NOT_GOOD)
 
 
+@app.command(epilog="Example: chainspace track arm.mp4 --points keyframes.json --chain milling_arm --out tracks.csv")
+@_guarded
+def track(
+    video: Annotated[Path, typer.Argument(help="A video file (MP4, MOV, AVI, ...) or a folder of numbered "
+                                               "PNG/JPEG frames.")],
+    points: Annotated[Path, typer.Option("--points", "-p", help='Key frames JSON: {"0": {"name": [x, y], '
+                                                                 '...}, "120": {...}} in pixels.')],
+    out: Annotated[Path, typer.Option("--out", "-o", help="The tracks CSV (frame,joint,x,y,confidence).")],
+    fps: Annotated[Optional[float], typer.Option(help="Frame rate (needed for an image folder).")] = None,
+    chain: Annotated[Optional[str], typer.Option("--chain", "-c", help="Shipped name or description file: "
+                                                                       "the tracks get its joints, in order.")] = None,
+    window: Annotated[int, typer.Option(help="Side of the patch tracked around each point, px (odd).")] = 21,
+    levels: Annotated[int, typer.Option(help="Pyramid levels above the full image.")] = 3,
+    fb_max_px: Annotated[float, typer.Option("--fb-max-px", help="Forward-backward error beyond which a "
+                                                                 "point is lost, px.")] = 1.0,
+    refine: Annotated[bool, typer.Option(help="Align each point's key-frame patch to every frame (rotation "
+                                              "and shift, ECC) after the LK step.")] = True,
+    progress: Annotated[bool, typer.Option(help="Show progress on stderr.")] = True,
+    overwrite: Overwrite = False,
+) -> None:
+    """Track the key frames' points through a video (pyramidal Lucas-Kanade, forward-backward check).
+
+    Writes the tracks as CSV, the layout `chainspace reconstruct` reads; lost points are empty with
+    confidence 0. Prints the drift measured at each later key frame (re-anchor). Make the key frames
+    with `chainspace pick`.
+    """
+    from .video.tracking import track_video
+
+    _positive("--fps", fps)
+    _positive("--fb-max-px", fb_max_px)
+    result = track_video(video, points, out, chain=chain, fps=fps, overwrite=overwrite, progress=progress,
+                         window=window, levels=levels, fb_max_px=fb_max_px, refine=refine)
+    _say(f"wrote {out}")
+    for frame, drift in result.drift.items():
+        cells = ", ".join(f"{n} {d:.2f} px" if np.isfinite(d) else f"{n} lost before" for n, d in drift.items())
+        _say(f"drift at key frame {frame}: {cells}")
+    typer.echo(f"{repr(result)}; {result.n_frames / result.seconds:.0f} frames/s")
+
+
+@app.command(epilog="Example: chainspace pick arm.mp4 --frame 0 --chain milling_arm --out picker.html")
+@_guarded
+def pick(
+    video: Annotated[Path, typer.Argument(help="A video file or a folder of numbered PNG/JPEG frames.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="The HTML page to write.")],
+    frame: Annotated[list[int], typer.Option("--frame", "-f", help="Frame to show (0-based); repeat for "
+                                                                   "several key frames.")] = [0],  # noqa: B006
+    chain: Annotated[Optional[str], typer.Option("--chain", "-c", help="Shipped name or description file: "
+                                                                       "its joints are the points.")] = None,
+    names: Annotated[Optional[str], typer.Option(help="Point names in clicking order, comma-separated "
+                                                      "(instead of --chain).")] = None,
+    fps: Annotated[Optional[float], typer.Option(help="Frame rate of an image folder (unused otherwise).")] = None,
+    overwrite: Overwrite = False,
+) -> None:
+    """Write a standalone HTML page to click the chain's points on video frames.
+
+    Open it in a browser, click the points in the listed order, and copy or download the key-frame
+    JSON for `chainspace track --points`.
+    """
+    from .video.picker import write_picker
+
+    _positive("--fps", fps)
+    if any(f < 0 for f in frame):
+        raise TrackError(f"--frame must be >= 0, not {min(frame)}")
+    point_names = None if names is None else [n.strip() for n in names.split(",") if n.strip()]
+    _say(f"wrote {write_picker(video, out, frame, chain=chain, names=point_names, fps=fps, overwrite=overwrite)}")
+
+
 def main() -> None:  # pragma: no cover - the console script
     app()
 

@@ -19,6 +19,7 @@ __all__ = [
     "DescriptionNotFoundError",
     "TrackError",
     "CameraError",
+    "VideoError",
     "OutputExistsError",
     "ConvergenceWarning",
     "located",
@@ -44,6 +45,10 @@ class TrackError(ChainspaceError, ValueError):
 
 class CameraError(ChainspaceError, ValueError):
     """Camera intrinsics (values, a matrix or a calibration file) that cannot be used as given."""
+
+
+class VideoError(ChainspaceError, ValueError):
+    """A video or image folder (or its key frames) that cannot be read or used as given."""
 
 
 class OutputExistsError(ChainspaceError, FileExistsError):

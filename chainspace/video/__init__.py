@@ -1,1 +1,16 @@
-"""Video in and out: the result drawn over the footage (:func:`~chainspace.video.overlay.draw_overlay`)."""
+"""Video in and out: reading frames, key frames of the chain's points, tracking them, picking them by
+hand, and the result drawn over the footage.
+
+* :mod:`chainspace.video.reader`: :func:`open_video` streams the frames of an MP4/MOV/AVI file or of a
+  folder of numbered images (OpenCV), one at a time.
+* :mod:`chainspace.video.keyframes`: the key-frame JSON (frame index -> point name -> pixel).
+* :mod:`chainspace.video.tracking`: :func:`track_points` follows the points through the video with
+  pyramidal Lucas-Kanade and a forward-backward check; :func:`track_video` is the file-to-file twin of
+  ``chainspace track``.
+* :mod:`chainspace.video.picker`: a standalone HTML page to click the points on a frame
+  (``chainspace pick``).
+* :mod:`chainspace.video.overlay`: :func:`draw_overlay` draws a fit or a reconstruction, reprojected
+  through its own camera, over every frame (``chainspace overlay``).
+
+The public names are re-exported from :mod:`chainspace`; submodules import OpenCV only when used.
+"""
