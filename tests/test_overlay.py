@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 
 import chainspace
 from chainspace.cli import app
-from chainspace.errors import DescriptionNotFoundError, OutputExistsError, TrackError
+from chainspace.errors import OutputExistsError, TrackError, VideoError
 from chainspace.io.results import save_results
 from chainspace.robot.fit import fit_joint_angles
 from chainspace.synthetic.robot import synthesize
@@ -143,9 +143,9 @@ def test_frame_count_mismatch_and_unreadable_video(weak, tmp_path):
         draw_overlay(folder, fit, out=tmp_path / "a.mp4", progress=False)
     broken = tmp_path / "broken.mp4"
     broken.write_bytes(b"\x00not a video" * 50)
-    with pytest.raises(TrackError, match="broken.mp4: cannot read the video"):
+    with pytest.raises(VideoError, match="broken.mp4: not a video OpenCV can read"):
         draw_overlay(broken, fit, out=tmp_path / "b.mp4", progress=False)
-    with pytest.raises(DescriptionNotFoundError, match="no such video"):
+    with pytest.raises(VideoError, match="no such video"):
         draw_overlay(tmp_path / "missing.mp4", fit, out=tmp_path / "c.mp4", progress=False)
     with pytest.raises(TrackError, match=r"tracks have shape \(5, 9, 2\), expected \(6, 9, 2\)"):
         draw_overlay(video, fit, tracks=tr.tracks[:5], out=tmp_path / "d.mp4", progress=False)

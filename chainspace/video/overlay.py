@@ -30,8 +30,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
-import re
-import sys
 import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -40,8 +38,10 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ChainspaceError, DescriptionNotFoundError, TrackError, is_real
+from ..errors import ChainspaceError, TrackError, VideoError, is_real
 from ..io.results import check_writable
+from ..progress import progress_reporter
+from .reader import open_video
 
 __all__ = ["draw_overlay"]
 
@@ -52,86 +52,18 @@ _ERROR = (40, 40, 235)
 _TEXT = (255, 255, 255)
 _PANEL = (40, 36, 32)
 
-_IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
 _VIDEO_OUT_SUFFIXES = {".mp4", ".m4v", ".mov", ".avi"}
 _SHIFT = 4  # cv2 drawing with 4 fractional bits: points are placed to 1/16 px, not rounded to whole pixels
 
 
 # ---------------------------------------------------------------------------------------- reading frames
-def _unreadable(path: Path, why: str) -> ChainspaceError:
-    return TrackError(f"{path}: cannot read the video: {why}")
-
-
-def _natural_key(name: str) -> list[Any]:
-    # f9.png before f10.png: digit runs compare as numbers
-    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
-
-
-class _Frames:
-    """A video file (OpenCV) or a folder of numbered images, streamed as BGR uint8 frames.
-
-    Private stand-in for :func:`chainspace.video.open_video` (same attributes: ``fps``, ``size``
-    (width, height), ``frame_count``, iteration over frames).
-    """
-
-    def __init__(self, path: str | os.PathLike, fps: float | None = None) -> None:
-        import cv2
-
-        self.path = Path(path)
-        if not self.path.exists():
-            raise DescriptionNotFoundError(f"{self.path}: no such video file or folder")
-        if self.path.is_dir():
-            self._images = sorted((p for p in self.path.iterdir() if p.suffix.lower() in _IMAGE_SUFFIXES),
-                                  key=lambda p: _natural_key(p.name))
-            if not self._images:
-                raise _unreadable(self.path, "the folder holds no images (PNG, JPEG, BMP, TIFF)")
-            first = cv2.imread(str(self._images[0]), cv2.IMREAD_COLOR)
-            if first is None:
-                raise _unreadable(self._images[0], "not an image OpenCV can decode")
-            self.fps = 30.0 if fps is None else float(fps)  # a folder has no rate of its own
-            self.frame_count = len(self._images)
-        else:
-            self._images = None
-            cap = cv2.VideoCapture(str(self.path))
-            ok, first = cap.read() if cap.isOpened() else (False, None)
-            if not ok or first is None:
-                cap.release()
-                raise _unreadable(self.path, "OpenCV cannot open or decode it (corrupt, empty or not a video)")
-            self.fps = float(fps or cap.get(cv2.CAP_PROP_FPS) or 30.0)
-            count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-            self.frame_count = count if count > 0 else None  # some containers do not say
-            cap.release()
-        self.size = (int(first.shape[1]), int(first.shape[0]))
-
-    def __iter__(self) -> Iterator[np.ndarray]:
-        import cv2
-
-        if self._images is not None:
-            for p in self._images:
-                img = cv2.imread(str(p), cv2.IMREAD_COLOR)
-                if img is None:
-                    raise _unreadable(p, "not an image OpenCV can decode")
-                if (img.shape[1], img.shape[0]) != self.size:
-                    raise _unreadable(p, f"{img.shape[1]} x {img.shape[0]} px, the first image is "
-                                         f"{self.size[0]} x {self.size[1]}")
-                yield img
-            return
-        cap = cv2.VideoCapture(str(self.path))
-        try:
-            while True:
-                ok, img = cap.read()
-                if not ok:
-                    return
-                yield img
-        finally:
-            cap.release()
-
-
 def _frames(video: Any, fps: float | None = None) -> Any:
-    """An open video: a path (file or image folder), or an object already giving fps, size, frames."""
+    """An open video: a path (file or image folder) for :func:`open_video`, or a Video already open."""
     if all(hasattr(video, a) for a in ("fps", "size", "frame_count", "__iter__")):
         return video
-    return _Frames(video, fps)
+    if fps is None and Path(video).is_dir():
+        fps = 30.0  # only the overlay's playback rate: nothing is fitted from it
+    return open_video(video, fps=fps)
 
 
 # ---------------------------------------------------------------------------------------- the result in pixels
@@ -297,30 +229,6 @@ def _draw_frame(img: np.ndarray, scene: _Scene, f: int, rms: float, thick: int) 
     _text(img, f"frame {f}  RMS " + ("-" if not np.isfinite(rms) else f"{rms:.2f} px"), 0, thick)
 
 
-# ---------------------------------------------------------------------------------------- progress
-class _Lines:
-    """A stream for tqdm that turns its carriage-return redraws into plain lines (a log file, CI)."""
-
-    def __init__(self, stream: Any) -> None:
-        self.stream = stream
-
-    def write(self, s: str) -> None:
-        s = s.replace("\r", "").strip()
-        if s:
-            self.stream.write(s + "\n")
-
-    def flush(self) -> None:
-        self.stream.flush()
-
-
-def _bar(total: int | None, show: bool) -> Any:
-    from tqdm import tqdm
-
-    tty = sys.stderr.isatty()
-    return tqdm(total=total, desc="overlay", unit="frame", disable=not show, file=sys.stderr if tty else
-                _Lines(sys.stderr), mininterval=0.1 if tty else 10.0, dynamic_ncols=tty, ascii=not tty)
-
-
 # ---------------------------------------------------------------------------------------- writing
 @contextlib.contextmanager
 def _video_writer(target: Path, fps: float, size: tuple[int, int], overwrite: bool) -> Iterator[Any]:
@@ -414,19 +322,19 @@ def draw_overlay(video: Any, result: Any, *, tracks: Any = None, out: str | os.P
     panel = _Panel(scene, (width, height), thick) if side_by_side else None
     size = (2 * width if side_by_side else width, height)
     seen = 0
-    with _video_writer(target, frames.fps, size, overwrite) as writer, _bar(n, progress) as bar:
+    with _video_writer(target, frames.fps, size, overwrite) as writer, progress_reporter(progress, n, "overlay") as report:
         for f, img in enumerate(frames):
             if f >= n:
                 raise TrackError(f"{name}: the video has more frames than the result's {n}; give the video "
                                  "the result was computed from")
             if img.shape[:2] != (height, width):
-                raise _unreadable(Path(str(name)), f"frame {f} is {img.shape[1]} x {img.shape[0]} px, the first "
+                raise VideoError(f"{name}: frame {f} is {img.shape[1]} x {img.shape[0]} px, the first "
                                                    f"is {width} x {height}")
             img = np.ascontiguousarray(img)
             _draw_frame(img, scene, f, rms[f], thick)
             writer.write(img if panel is None else np.hstack([img, panel.draw(f)]))
             seen += 1
-            bar.update()
+            report(seen)
         if seen != n:
             raise TrackError(f"{name}: the video has {seen} frames but the result has {n}; give the video the "
                              "result was computed from")

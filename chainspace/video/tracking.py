@@ -16,10 +16,8 @@ the forward-backward check: the drift at re-anchors is the honest measure of tha
 from __future__ import annotations
 
 import os
-import sys
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import VideoError, is_real
+from ..progress import progress_reporter
 from .keyframes import Keyframes, load_keyframes, point_names
 from .reader import Video, open_video
 
@@ -141,36 +140,6 @@ def _check_options(window: Any, levels: Any, fb_max_px: Any) -> None:
         raise VideoError(f"fb_max_px must be a finite number > 0 (pixels), not {fb_max_px!r}")
 
 
-@contextmanager
-def _progress(progress: bool | Callable[[int, int], None], total: int, label: str) -> Iterator[Callable[[int], None]]:
-    """Report frames done: a rich bar on a terminal, a plain line every 10% when stderr is piped, or a
-    caller's function ``progress(done, total)``."""
-    if callable(progress):
-        yield lambda done: progress(done, total)
-        return
-    if not progress:
-        yield lambda done: None
-        return
-    if sys.stderr.isatty():
-        from rich.console import Console
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-        columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
-        with Progress(*columns, console=Console(stderr=True, highlight=False), transient=True) as bar:
-            task = bar.add_task(label, total=total)
-            yield lambda done: bar.update(task, completed=done)
-        return
-    step = max(1, total // 10)
-    last = [0]
-
-    def plain(done: int) -> None:
-        if done - last[0] >= step or (done == total and last[0] != total):
-            last[0] = done
-            print(f"{label}: {done}/{total} frames", file=sys.stderr, flush=True)
-
-    yield plain
-
-
 def track_points(video: Video | str | os.PathLike, keyframes: str | os.PathLike | Mapping[Any, Any], *,
                  chain: Any = None, window: int = 21, levels: int = 3, fb_max_px: float = 1.0,
                  texture_eig: float = 0.02, fps: float | None = None, max_iter: int = 30, eps_px: float = 0.01,
@@ -265,7 +234,7 @@ def _run(vid: Video, kf: Keyframes, index: dict[str, int], window: int, levels: 
     done = first
     templates: list[Any] = [None] * J
     angles = np.zeros(J)
-    with _progress(progress, F, f"tracking {J} points") as report:
+    with progress_reporter(progress, F, f"tracking {J} points") as report:
         for f, image in enumerate(vid.frames(first), start=first):
             gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
             if prev is not None and alive.any():
