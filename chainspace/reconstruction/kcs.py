@@ -19,7 +19,8 @@ thresholding, SVT). The penalty weight follows a continuation schedule: in the f
 falls geometrically from ``tau_range[0]`` to ``tau_range[1]`` times the spectral norm of the first
 gradient (1e-1 to 1e-4), so that the equality holds at the end as far as the data allow; later
 passes, warm-started from the previous ``A``, stay at the small ``tau``. The singular values of the
-(3F x 3K) matrix ``A`` come from its 3K x 3K Gram matrix, so an iteration costs O(F K L). The
+(3F x 3K) matrix ``A`` come from its 3K x 3K Gram matrix, so an iteration costs O(F K L); with
+one weight per frame the steps run in the eigenbasis of ``S S^T``, where it is diagonal. The
 camera step starts from the previous rotations (one Gauss-Newton step per pass: more did not change
 the result).
 
