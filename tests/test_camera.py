@@ -64,3 +64,17 @@ def test_project_and_shape_errors():
         project(X, P[:, :, :2])
     with pytest.raises(TrackError):
         fit_cameras(np.zeros((3, 4, 2)), np.zeros((3, 5, 3)))
+
+
+def test_closed_form_orthonormal_rows_are_the_svd_polar_factor():
+    """The closed-form start (2 x 2 inverse square root) is U V^T of the SVD; rank-one and zero
+    matrices, where it has no closed form, fall back to the SVD and still have orthonormal rows."""
+    from chainspace.cameras.weak import _orthonormal_rows
+
+    M = np.random.default_rng(3).normal(size=(200, 2, 3)) * np.logspace(-6, 6, 200)[:, None, None]
+    M[0] = np.outer([1.0, 2.0], [0.0, 3.0, 4.0])
+    M[1] = 0.0
+    U, _, Vt = np.linalg.svd(M, full_matrices=False)
+    Q = _orthonormal_rows(M)
+    np.testing.assert_allclose(Q[2:], (U @ Vt)[2:], atol=1e-10)
+    np.testing.assert_allclose(Q @ np.swapaxes(Q, 1, 2), np.broadcast_to(np.eye(2), (200, 2, 2)), atol=1e-10)

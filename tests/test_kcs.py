@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from chainspace.io.datasets import human17
 from chainspace.reconstruction.kcs import kcs_factorize
@@ -55,3 +56,17 @@ def test_per_frame_weights_shortcut_matches_the_per_bone_gradient():
     general = kcs_factorize(W, c2, chain, chain.rest_pose)
     assert fast.n_iter == general.n_iter
     np.testing.assert_allclose(fast.poses, general.poses, atol=1e-7)
+
+
+def test_svt_matches_a_full_svd():
+    """Singular value thresholding from the Gram matrix, through all directions or through the few
+    kept ones (low thresholded rank), equals U max(sigma - tau, 0) V^T from a full SVD."""
+    from chainspace.reconstruction.kcs import _svt
+
+    A = np.random.default_rng(5).normal(size=(50, 3, 15)) * np.logspace(0, -3, 15)
+    U, sig, Vt = np.linalg.svd(A.reshape(-1, 15), full_matrices=False)
+    for tau in (0.0, 0.5 * sig[3], 0.5 * sig[12], 2.0 * sig[0]):  # all kept, a few (two thin products), most, none
+        out, nuc = _svt(A, tau)
+        shrunk = np.maximum(sig - tau, 0.0)
+        np.testing.assert_allclose(out.reshape(-1, 15), (U * shrunk) @ Vt, atol=1e-10 * sig[0])
+        assert nuc == pytest.approx(shrunk.sum())

@@ -162,3 +162,24 @@ def test_benchmark_table_format():
 
     table = format_table([Row("walk35", 2.0, 4, {"chainspace default": (0.0201, 0.0195, 0.3)})])
     assert "| walk35 | 2 | 4 |" in table and "20.1 / 19.5 (0.30 s)" in table
+
+
+def test_blas_threads_give_the_same_result_and_are_checked(chain):
+    X, W = _walkish(chain, F=30)
+    one = reconstruct(W, chain, method="kcs")
+    every = reconstruct(W, chain, method="kcs", blas_threads=None)
+    np.testing.assert_allclose(one.poses, every.poses, atol=1e-9)
+    for bad in (0, 1.5, True, "2"):
+        with pytest.raises(TrackError, match="blas_threads"):
+            reconstruct(W, chain, blas_threads=bad)
+
+
+def test_speed_table_format():
+    from chainspace.bench.reconstruction import format_speed
+
+    rows = [{"frames": n, "threads": t, "kcs_s": n / 2e4, "kcs_cpu_s": n / 2e4, "default_s": n / k,
+             "default_cpu_s": n / k, "refine_s": n / 8e3, "kcs_bytes_per_frame": 4e3, "default_bytes_per_frame": 1.6e4}
+            for n, k in ((1_000, 5e3), (100_000, 2.5e3)) for t in (1, None)]
+    table = format_speed(rows)
+    assert "| 100,000 | all cores | 5 | 5 | 20,000 | 8,000 | 40 | 40 | 2,500 | 4 | 16 |" in table
+    assert "Linearity, BLAS threads 1: frames/s at 100,000 over 1,000 frames: KCS 1.00 (CPU 1.00), default 0.50" in table

@@ -176,29 +176,44 @@ def format_table(rows: Sequence[Row], columns: Sequence[str] = COLUMNS) -> str:
 
 
 # ------------------------------------------------------------------------------------------ speed
-def run_speed(sizes: Sequence[int] = (100, 1_000, 10_000, 100_000), *, quick: bool = False,
-              progress: Callable[[str], None] | None = None, min_time: float = 1.0) -> list[dict[str, float]]:
-    """Seconds and frames/s of the KCS stage and of the default pipeline for each number of frames.
+def run_speed(sizes: Sequence[int] = (1_000, 10_000, 100_000), *, quick: bool = False,
+              threads: Sequence[int | None] = (1, None), memory: bool = True,
+              progress: Callable[[str], None] | None = None, min_time: float = 1.0) -> list[dict[str, Any]]:
+    """Seconds, CPU seconds and frames/s of the KCS stage and of the default pipeline for each
+    number of frames and each BLAS thread count (``reconstruct(..., blas_threads=)``: 1, and None
+    for the BLAS library's default, all cores), and the peak memory per frame (tracemalloc, one
+    BLAS thread, a separate run).
 
     A human17 chain in smooth motion (:func:`chainspace.synthetic.views.swing_motion` at 120 Hz), a
     low-motion orbit camera, 2 px noise. ``quick`` stops at 10,000 frames. Each method runs again
     until ``min_time`` seconds have passed (at least once) and the fastest run counts (wall clock,
-    with its CPU time): on a shared machine the fastest run is the one least slowed by others.
+    with its CPU time, all threads): on a shared machine the fastest run is the one least slowed
+    by others.
     """
+    import tracemalloc
+
     from ..io.datasets import human17
     from ..reconstruction.pipeline import reconstruct
     from ..synthetic.views import swing_motion
 
-    def timed(W, chain, method):
+    def timed(W, chain, method, n_threads):
         best, spent = None, 0.0
         while best is None or spent < min_time:
             t0, c0 = time.perf_counter(), time.process_time()
-            rec = reconstruct(W, chain, method=method)
+            rec = reconstruct(W, chain, method=method, blas_threads=n_threads)
             wall, cpu = time.perf_counter() - t0, time.process_time() - c0
             spent += wall
             if best is None or wall < best[0]:
                 best = (wall, cpu, rec)
         return best
+
+    def peak(W, chain, method):
+        tracemalloc.start()
+        try:
+            reconstruct(W, chain, method=method)
+            return tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
 
     chain = human17()
     rows = []
@@ -208,29 +223,50 @@ def run_speed(sizes: Sequence[int] = (100, 1_000, 10_000, 100_000), *, quick: bo
         W = observe(X, P, translations=[IMAGE_HEIGHT_PX / 2] * 2, noise_px=2.0, seed=1)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            t_kcs, cpu_kcs, _ = timed(W, chain, "kcs")
-            t_def, cpu_def, rec = timed(W, chain, "default")
-        rows.append({"frames": n, "kcs_s": t_kcs, "default_s": t_def, "kcs_cpu_s": cpu_kcs, "default_cpu_s": cpu_def,
-                     "refine_share": rec.timings.get("refine", 0.0) / max(sum(rec.timings.values()), 1e-12)})
-        if progress:
-            progress(f"{n} frames: KCS {t_kcs:.2f} s, default {t_def:.2f} s")
+            mem = {m: peak(W, chain, m) / n for m in ("kcs", "default")} if memory else {}
+            for n_threads in threads:
+                t_kcs, cpu_kcs, _ = timed(W, chain, "kcs", n_threads)
+                t_def, cpu_def, rec = timed(W, chain, "default", n_threads)
+                rows.append({"frames": n, "threads": n_threads, "kcs_s": t_kcs, "kcs_cpu_s": cpu_kcs,
+                             "default_s": t_def, "default_cpu_s": cpu_def,
+                             "refine_s": rec.timings.get("refine", 0.0),
+                             "kcs_bytes_per_frame": mem.get("kcs"), "default_bytes_per_frame": mem.get("default")})
+                if progress:
+                    progress(f"{n} frames, BLAS threads {n_threads or 'all'}: KCS {t_kcs:.2f} s, default {t_def:.2f} s")
     return rows
 
 
-def format_speed(rows: Sequence[dict[str, float]]) -> str:
-    """Markdown table of :func:`run_speed`; flat frames/s means cost linear in frames."""
-    def cpu(r, key):
-        return "-" if r.get(key) is None else f"{r[key]:.3g}"
+def format_speed(rows: Sequence[dict[str, Any]]) -> str:
+    """Markdown table of :func:`run_speed` and the linearity of each stage (frames/s at the largest
+    size over frames/s at the smallest, 1 = linear; wall clock and CPU time)."""
+    def num(v, fmt):
+        return "-" if v is None else format(v, fmt)
 
-    lines = ["| frames | KCS s | KCS CPU s | KCS frames/s | default s | default CPU s | default frames/s "
-             "| refine share |", "|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    def kb(v):
+        return num(None if v is None else v / 1e3, ".3g")
+
+    lines = ["| frames | BLAS threads | KCS s | KCS CPU s | KCS frames/s | refine frames/s | default s "
+             "| default CPU s | default frames/s | KCS peak kB/frame | default peak kB/frame |",
+             "|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         n = r["frames"]
-        lines.append(f"| {n:,} | {r['kcs_s']:.3g} | {cpu(r, 'kcs_cpu_s')} | {n / r['kcs_s']:,.0f} | "
-                     f"{r['default_s']:.3g} | {cpu(r, 'default_cpu_s')} | {n / r['default_s']:,.0f} | "
-                     f"{r['refine_share']:.0%} |")
+        lines.append(f"| {n:,} | {r['threads'] or 'all cores'} | {r['kcs_s']:.3g} | {num(r.get('kcs_cpu_s'), '.3g')} | "
+                     f"{n / r['kcs_s']:,.0f} | {n / max(r['refine_s'], 1e-12):,.0f} | {r['default_s']:.3g} | "
+                     f"{num(r.get('default_cpu_s'), '.3g')} | {n / r['default_s']:,.0f} | "
+                     f"{kb(r.get('kcs_bytes_per_frame'))} | {kb(r.get('default_bytes_per_frame'))} |")
     lines.append("")
-    lines.append("Fastest of repeated runs (wall clock); CPU s is that run's process time (one BLAS thread).")
+    lines.append("Fastest of repeated runs (wall clock); CPU s is that run's process time (all threads); "
+                 "peak memory from tracemalloc, one BLAS thread.")
+    for t in dict.fromkeys(r["threads"] for r in rows):
+        sub = sorted((r for r in rows if r["threads"] == t), key=lambda r: r["frames"])
+        if len(sub) < 2:
+            continue
+        lo, hi = sub[0], sub[-1]
+        ratio = {k: (hi["frames"] / hi[k]) / (lo["frames"] / lo[k]) for k in ("kcs_s", "kcs_cpu_s", "default_s",
+                                                                                 "default_cpu_s")}
+        lines.append(f"Linearity, BLAS threads {t or 'all cores'}: frames/s at {hi['frames']:,} over {lo['frames']:,} "
+                     f"frames: KCS {ratio['kcs_s']:.2f} (CPU {ratio['kcs_cpu_s']:.2f}), default "
+                     f"{ratio['default_s']:.2f} (CPU {ratio['default_cpu_s']:.2f}); 1 = linear.")
     return "\n".join(lines)
 
 

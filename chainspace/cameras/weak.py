@@ -37,15 +37,17 @@ def _rows(a: np.ndarray, dim: int, other: int | None, name: str) -> np.ndarray:
 
 def rodrigues(omega: np.ndarray) -> np.ndarray:
     """(..., 3, 3) rotation matrices exp([omega]x) for rotation vectors (..., 3)."""
-    th = np.linalg.norm(omega, axis=-1)[..., None, None]
+    th2 = np.einsum("...i,...i->...", omega, omega)[..., None, None]
+    th = np.sqrt(th2)
     K = np.zeros(omega.shape[:-1] + (3, 3))
     K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -omega[..., 2], omega[..., 1], -omega[..., 0]
     K = K - np.swapaxes(K, -1, -2)
     small = th < 1e-8
     ths = np.where(small, 1.0, th)
-    a = np.where(small, 1.0 - th**2 / 6.0, np.sin(ths) / ths)
-    b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
-    return np.eye(3) + a * K + b * _mm(K, K)
+    a = np.where(small, 1.0 - th2 / 6.0, np.sin(ths) / ths)
+    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
+    # K K = omega omega^T - |omega|^2 I (no stacked matrix product)
+    return (1.0 - b * th2) * np.eye(3) + a * K + b * (omega[..., :, None] * omega[..., None, :])
 
 
 def complete_rotation(Q: np.ndarray) -> np.ndarray:
@@ -103,9 +105,8 @@ def fit_cameras(
     if Bx.shape != (F, L, 3):
         raise TrackError(f"B has shape {np.shape(B)}, which does not match W_bones {np.shape(W_bones)}")
     w = np.ones((F, L)) if weights is None else np.broadcast_to(np.asarray(weights, float), (F, L)).copy()
-    ok = (w > 0) & np.isfinite(W[..., 0]) & np.isfinite(W[..., 1])
-    for c in range(3):
-        ok &= np.isfinite(Bx[..., c])
+    # a sum of the coordinates is finite only when each of them is
+    ok = (w > 0) & np.isfinite(W[..., 0] + W[..., 1]) & np.isfinite(Bx[..., 0] + Bx[..., 1] + Bx[..., 2])
     if not ok.all():
         w = np.where(ok, w, 0.0)
         W = np.where(ok[..., None], W, 0.0)
@@ -116,13 +117,12 @@ def fit_cameras(
     wB = w[..., None] * Bx
     G = np.swapaxes(wB, -1, -2) @ Bx
     H = np.swapaxes(W, -1, -2) @ wB
-    c0 = (w * (W * W).sum(-1)).sum(-1)
+    c0 = np.einsum("fl,fli,fli->f", w, W, W)
     if R0 is None:
         # Closed form: affine M = H G^-1, projected onto s * (orthonormal rows) by one SVD.
         ridge = 1e-9 * np.trace(G, axis1=-2, axis2=-1)[:, None, None] + 1e-300
         M = H @ np.linalg.inv(G + ridge * np.eye(3))
-        U, _, Vt = np.linalg.svd(M, full_matrices=False)
-        R = complete_rotation(U @ Vt)
+        R = complete_rotation(_orthonormal_rows(M))
     else:
         R = np.broadcast_to(np.asarray(R0, float), (F, 3, 3)).copy()
     s, R, cost = _scale_and_cost(G, H, c0, R)
@@ -143,6 +143,26 @@ def fit_cameras(
         R = np.where(usable[:, None, None], R, np.nan)
     P = s[:, None, None] * R[:, :2]
     return (P, s, R) if return_rotation else P
+
+
+def _orthonormal_rows(M: np.ndarray) -> np.ndarray:
+    """The nearest (F, 2, 3) matrices with orthonormal rows, U V^T of the SVD M = U S V^T, in closed
+    form: (M M^T)^(-1/2) M, where a 2 x 2 A = M M^T with r = sqrt(det A) has the square root
+    (A + r I) / sqrt(tr A + 2 r) (a batched SVD of many 2 x 3 matrices is slow); the SVD where M
+    is (nearly) of rank one."""
+    A = M @ np.swapaxes(M, -1, -2)
+    det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
+    tr = A[:, 0, 0] + A[:, 1, 1]
+    ok = det > 1e-12 * tr**2
+    r = np.sqrt(np.where(ok, det, 1.0))
+    # (A + r I)^-1 = adj(A + r I) / det(A + r I), det(A + r I) = r (tr + 2 r)
+    adj = np.stack([np.stack([A[:, 1, 1] + r, -A[:, 0, 1]], -1), np.stack([-A[:, 1, 0], A[:, 0, 0] + r], -1)], -2)
+    k = 1.0 / (r * np.sqrt(tr + 2.0 * r))
+    Q = (adj * k[:, None, None]) @ M
+    if not ok.all():
+        U, _, Vt = np.linalg.svd(M[~ok], full_matrices=False)
+        Q[~ok] = U @ Vt
+    return Q
 
 
 def _mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -19,7 +19,8 @@ thresholding, SVT). The penalty weight follows a continuation schedule: in the f
 falls geometrically from ``tau_range[0]`` to ``tau_range[1]`` times the spectral norm of the first
 gradient (1e-1 to 1e-4), so that the equality holds at the end as far as the data allow; later
 passes, warm-started from the previous ``A``, stay at the small ``tau``. The singular values of the
-(3F x 3K) matrix ``A`` come from its 3K x 3K Gram matrix, so an iteration costs O(F K L). The
+(3F x 3K) matrix ``A`` come from its 3K x 3K Gram matrix, so an iteration costs O(F K L); with
+one weight per frame the steps run in the eigenbasis of ``S S^T``, where it is diagonal. The
 camera step starts from the previous rotations (one Gauss-Newton step per pass: more did not change
 the result).
 
@@ -114,14 +115,20 @@ def _pose_basis(tracks, weights, P, X0, n_basis):
 
 
 def _svt(A: np.ndarray, tau: float) -> tuple[np.ndarray, float]:
-    """Singular value thresholding of the stacked (3F x 3K) matrix A given as (F, 3, 3K)."""
+    """Singular value thresholding of the stacked (3F x 3K) matrix A given as (F, 3, 3K).
+
+    The right singular vectors V and values come from the small Gram matrix, and the result is
+    A V diag(gain) V^T = A N: one product with an (3K x 3K) matrix, or two thin ones through
+    the r kept directions when r < 3K / 2 (the thresholded rank is often low)."""
     M = A.reshape(-1, A.shape[-1])
     evals, V = np.linalg.eigh(M.T @ M)
     sig = np.sqrt(np.maximum(evals, 0.0))
     shrunk = np.maximum(sig - tau, 0.0)
-    gain = np.where(sig > 0, shrunk / np.where(sig > 0, sig, 1.0), 0.0)
-    out = (M @ (V * gain) @ V.T).reshape(A.shape)
-    return out, float(shrunk.sum())
+    keep = shrunk > 0
+    Vk = V[:, keep]
+    Vg = Vk * (shrunk[keep] / sig[keep])
+    out = (M @ Vg) @ Vk.T if 2 * Vk.shape[1] < M.shape[1] else M @ (Vg @ Vk.T)
+    return out.reshape(A.shape), float(shrunk.sum())
 
 
 def _PA(P: np.ndarray, A: np.ndarray) -> np.ndarray:
@@ -143,27 +150,41 @@ def _solve_A(A, P, S, R, wb, taus):
     if lip <= 0:
         return A
     step = 1.0 / lip
-    Y, A_prev, t = A.copy(), A.copy(), 1.0
     St = np.ascontiguousarray(S.T)
     wk = wb[:, 0]
     if (wb == wk[:, None]).all():
         # One weight per frame (every bone seen, equal confidences): the gradient
-        # w_k (P_k^T P_k A_k S S^T - P_k^T R_k S^T) needs no per-bone products in the loop.
-        PtP = _PtG(P, P) * wk[:, None, None]
-        G = S @ St
-        c = _PtG(P, ((R * wk[:, None, None]).reshape(2 * F, -1) @ St).reshape(F, 2, m))
+        # w_k (P_k^T P_k A_k S S^T - P_k^T R_k S^T) needs no per-bone products in the loop, and in
+        # the eigenbasis U of S S^T (A -> A U, which the SVT commutes with) S S^T is diagonal.
+        lam, U = np.linalg.eigh(S @ St)
+        PtP = _PtG(P, P) * (step * wk)[:, None, None]
+        c = _PtG(P, ((R * (step * wk)[:, None, None]).reshape(2 * F, -1) @ (St @ U)).reshape(F, 2, m))
+        A_prev = (A.reshape(-1, m) @ U).reshape(A.shape)
 
-        def gradient(Y):
-            return (_PA(PtP, Y).reshape(3 * F, m) @ G).reshape(F, 3, m) - c
+        def descent(Y):  # Y - step * gradient(Y)
+            Z = np.matmul(PtP, Y)
+            Z *= -lam
+            Z += Y
+            Z += c
+            return Z
     else:
-        def gradient(Y):
+        U, A_prev = None, A.copy()
+
+        def descent(Y):
             res = (_PA(P, Y).reshape(2 * F, m) @ S).reshape(F, 2, -1) - R  # (F, 2, L)
-            return _PtG(P, ((res * wb[:, None, :]).reshape(2 * F, -1) @ St).reshape(F, 2, m))
+            return Y - step * _PtG(P, ((res * wb[:, None, :]).reshape(2 * F, -1) @ St).reshape(F, 2, m))
+    Y, t = A_prev.copy(), 1.0
     for tau in taus:
-        A_new, _ = _svt(Y - step * gradient(Y), step * tau)
+        A_new, _ = _svt(descent(Y), step * tau)
         t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
-        Y = A_new + ((t - 1.0) / t_new) * (A_new - A_prev)
+        # Y = A_new + beta (A_new - A_prev), written to reuse the buffers
+        beta = (t - 1.0) / t_new
+        np.subtract(A_new, A_prev, out=Y)
+        Y *= beta
+        Y += A_new
         A_prev, t = A_new, t_new
+    if U is not None:
+        return (A_prev.reshape(-1, m) @ U.T).reshape(A.shape)
     return A_prev
 
 

@@ -335,6 +335,7 @@ def reconstruct(
     refine_options: dict | None = None,
     intrinsics: Any = None,
     perspective_iter: int = 1,
+    blas_threads: int | None = 1,
 ) -> Reconstruction:
     """3D poses and weak-perspective cameras of ``chain`` from 2D ``tracks`` of one camera.
 
@@ -380,6 +381,9 @@ def reconstruct(
         towards/away, 0 and 2 px) one pass gave 23-51 mm, two passes 18-77 mm (the correction
         made turning walks with 2 px noise 47 -> 76 mm). See ``Reconstruction.intrinsics`` for what
         cameras and translations mean then.
+    blas_threads
+        BLAS threads while it runs (see Notes): 1 by default, ``None`` to leave the BLAS
+        library's own setting (usually all cores).
 
     Raises
     ------
@@ -392,10 +396,10 @@ def reconstruct(
 
     Notes
     -----
-    While it runs, BLAS is limited to one thread when the ``threadpoolctl`` package is installed
+    While it runs, BLAS is limited to ``blas_threads`` threads (one) through ``threadpoolctl``
     (the previous limits are restored on return; nothing is set in the environment). The matrix
-    products here are thin (frames x 15): BLAS threads only add overhead, and on a busy machine
-    they made the KCS stage 3-4 times slower.
+    products here are thin (frames x 15): BLAS threads add little, and on a busy machine they
+    made the KCS stage 3-4 times slower (``benchmarks/bench_speed.py`` measures both).
     """
     if method not in METHODS:
         raise TrackError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -403,16 +407,17 @@ def reconstruct(
         raise TrackError(f"chain must be a KinematicChain, not {type(chain).__name__} "
                          "(load one with chainspace.load_chain or chainspace.shipped)")
     _check_options(chain, max_iter, tol, n_basis, refine_options)
-    if not (isinstance(perspective_iter, (int, np.integer)) and not isinstance(perspective_iter, bool)
-            and perspective_iter >= 1):
+    if not (_whole(perspective_iter) and perspective_iter >= 1):
         raise TrackError(f"perspective_iter must be a whole number >= 1, not {perspective_iter!r}")
+    if blas_threads is not None and not (_whole(blas_threads) and blas_threads >= 1):
+        raise TrackError(f"blas_threads must be a whole number >= 1 or None, not {blas_threads!r}")
     camera = None
     if intrinsics is not None:
         from ..cameras.pinhole import as_camera
         camera = as_camera(intrinsics)
     W, c, given, X0, T = _check_inputs(tracks, chain, init_pose, confidence, truth)
     try:
-        with np.errstate(all="ignore"), _one_blas_thread():
+        with np.errstate(all="ignore"), _one_blas_thread(blas_threads):
             if camera is not None:
                 return _run_perspective(W, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis,
                                         refine_options, camera, int(perspective_iter))
@@ -424,18 +429,25 @@ def reconstruct(
                          "check for degenerate tracks (points that never move apart)") from None
 
 
+def _whole(v: Any) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+
 _BLAS: list = []  # the threadpoolctl controller, made on first use (finding the libraries takes ~15 ms)
 
 
-def _one_blas_thread():
-    """A context limiting BLAS to one thread (threadpoolctl), or doing nothing without threadpoolctl."""
+def _one_blas_thread(n: int | None = 1):
+    """A context limiting BLAS to n threads (threadpoolctl), or doing nothing when n is None or
+    without threadpoolctl."""
     if not _BLAS:
         try:
             from threadpoolctl import ThreadpoolController
             _BLAS.append(ThreadpoolController())
         except Exception:  # not installed, or no BLAS found: run with the defaults
             _BLAS.append(None)
-    return contextlib.nullcontext() if _BLAS[0] is None else _BLAS[0].limit(limits=1, user_api="blas")
+    if _BLAS[0] is None or n is None:
+        return contextlib.nullcontext()
+    return _BLAS[0].limit(limits=int(n), user_api="blas")
 
 
 def _run(W_in, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis, refine_options):
