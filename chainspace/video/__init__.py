@@ -1,0 +1,1 @@
+"""Video: rendering a robot, markers, and (other modules) tracking and overlays."""
