@@ -351,7 +351,7 @@ def _template(marker_map: MarkerMap, mid: int, px: int = 8) -> tuple[np.ndarray,
 
 
 def refine_corners(grey: np.ndarray, corners: np.ndarray, marker_map: MarkerMap, mid: int,
-                   max_shift_px: float = 2.0) -> np.ndarray:
+                   max_shift_px: float = 4.0) -> np.ndarray:
     """Corners (4, 2) of one marker refined by aligning its whole printed pattern (a homography, OpenCV's
     ``findTransformECC``, which is indifferent to brightness and contrast) to the image, started from
     ``corners``. Sub-pixel corner refinement alone looks at a small window round each corner; where a

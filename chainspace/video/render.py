@@ -403,7 +403,7 @@ def render_video(urdf_or_chain: Any, q: Any, camera: Any, R: Any, t: Any, out: s
         truth = r.truth(q)
         visible = np.zeros(truth["marker_facing"].shape, bool)
         is_video = out.suffix.lower() in (".mp4", ".avi", ".mov")
-        tmp = out.with_name(f".{out.name}.partial{out.suffix}")
+        tmp = out.with_name(f".{out.name}.{os.getpid()}.partial{out.suffix}")  # unique: two processes may render one clip
         if is_video:
             writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (w, h))
             if not writer.isOpened():
