@@ -237,6 +237,8 @@ class RobotRenderer:
                                 physicsClientId=cid)
         self._marker_bodies = []
         if self.markers is not None:
+            half = self.markers.aruco_dictionary().markerSize / 2 + 1  # half the marker, in cells
+            self._margin_mid = (half + 0.5) / half
             for m in self.markers.markers:
                 tex_img, scale = _marker_texture(self.markers, m.id)
                 v, uv, idx, nrm = _plate_mesh(0.5 * m.size * scale, self.markers.aruco_dictionary().markerSize + 4)
@@ -335,7 +337,8 @@ class RobotRenderer:
     def truth(self, q: np.ndarray) -> dict[str, np.ndarray]:
         """Truth of configurations ``q`` (F, nq): ``positions`` (F, J, 3) m and ``points`` (F, J, 2) px of
         the chain's points, ``marker_corners`` (F, M, 4, 2) px and ``marker_facing`` (F, M) (the
-        marker's face turned towards the camera by more than 15 degrees)."""
+        marker's normal within 60 degrees of the line to the camera: more oblique, a marker is hard to
+        decode and it is not counted as seen)."""
         from ..io.urdf import point_positions
         from .markers import marker_corners_local
 
@@ -355,21 +358,26 @@ class RobotRenderer:
                 pts = marker_corners_local(m.size) @ Rw.T + cw
                 corners[f, k] = self.camera.project(pts @ self.R.T + self.t)
                 look = centre - cw
-                facing[f, k] = Rw[:, 2] @ look > np.cos(np.deg2rad(75)) * np.linalg.norm(look)
+                facing[f, k] = Rw[:, 2] @ look > np.cos(np.deg2rad(60)) * np.linalg.norm(look)
         out["marker_corners"] = corners
         out["marker_facing"] = facing
         return out
 
     def visible(self, corners: np.ndarray, facing: np.ndarray, seg: np.ndarray) -> np.ndarray:
         """(M,) markers of one frame seen whole: facing the camera, inside the image (2 px in), and the marker's own
-        plate at each corner pulled 15 % towards its centre (nothing in front of it)."""
+        plate at each corner and edge midpoint of its black border (pulled 5 % in) and of its white
+        margin (nothing in front of it)."""
         h, w = seg.shape
         out = np.zeros(len(self._marker_bodies), bool)
         for k, (b, *_rest) in enumerate(self._marker_bodies):
             c = corners[k]
             if not facing[k] or not np.isfinite(c).all():
                 continue
-            inner = np.rint(c + 0.15 * (c.mean(0) - c)).astype(int)
+            # the black border's corners and edge midpoints pulled 5 % in, and the same points in the
+            # middle of the white margin round it (cv2.aruco needs that quiet zone clear to find it)
+            rim = np.vstack([c, 0.5 * (c + np.roll(c, -1, axis=0))])
+            mid = c.mean(0)
+            inner = np.rint(np.vstack([rim + 0.05 * (mid - rim), mid + (rim - mid) * self._margin_mid])).astype(int)
             if (c < 2).any() or (c[:, 0] > w - 3).any() or (c[:, 1] > h - 3).any():
                 continue  # cut by the image border (or touching it: cv2.aruco drops those)
             out[k] = bool((seg[inner[:, 1], inner[:, 0]] == b).all())
