@@ -684,8 +684,8 @@ def markers(
 def demo(
     out: Annotated[Path, typer.Option("--out", "-o", help="Folder for everything the demo writes.")] =
     Path("demo-output"),
-    seed: Annotated[int, typer.Option(help="Random seed of the synthetic trial (the camera placement; "
-                                           "see chainspace.demo.run_demo).")] = 4,
+    seed: Annotated[int, typer.Option(help="Random seed of the rendered clip (the path's placement, the camera "
+                                           "and the textures; see chainspace.demo.run_demo).")] = 8,
     frames: Annotated[int, typer.Option(help="Frames of the filmed motion (fewer: a quicker look).")] = 300,
     overwrite: Overwrite = False,
 ) -> None:

@@ -54,7 +54,7 @@ def cache_dir() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "chainspace"
 
 
-def demo_clip(n_frames: int = 300, seed: int = 4, *, size: tuple[int, int] = DEMO_SIZE,
+def demo_clip(n_frames: int = 300, seed: int = 8, *, size: tuple[int, int] = DEMO_SIZE,
               distance_reaches: float = DEMO_DISTANCE, robot: str = "milling_arm", cache: str | Path | None = None,
               progress: bool | Callable[[str], None] = False) -> tuple[Path, Any]:
     """(path of the rendered clip, the trial it films), rendering it into the cache when missing.
@@ -146,10 +146,14 @@ def _write_angles_csv(path: Path, q: np.ndarray, names: list[str], fps: float, o
 
 
 def run_demo(out_dir: str | Path, *, overwrite: bool = False, progress: bool | Callable[[str], None] = True,
-             seed: int = 4, n_frames: int = 300, cache: str | Path | None = None) -> dict[str, Any]:
+             seed: int = 8, n_frames: int = 300, cache: str | Path | None = None) -> dict[str, Any]:
     """Run the milling-arm demo into ``out_dir`` and return a summary.
 
-    ``n_frames`` frames at 30 fps; ``seed`` fixes the path's placement, the camera and the textures;
+    ``n_frames`` frames at 30 fps; ``seed`` fixes the path's placement, the camera and the textures.
+    Not every placement suits markers: with seed 4 the camera looks along the arm's plane from behind,
+    the side markers are edge-on, 4 of the 19 are ever found and the fit fails (as it should: a camera
+    set-up to change). The default (8) sees 6 to 8 markers a frame, on every link (seeds 0-13 were
+    compared by the markers facing the camera, before any fit);
     ``cache``: the folder of rendered clips (default :func:`cache_dir`). ``progress``: print stage
     messages (True), stay quiet (False) or call a function with each message. The summary holds the
     objects (``"reconstruction"``, ``"fit"``, ``"report"``, ``"truth_q"``, ``"truth_positions"``,

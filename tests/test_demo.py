@@ -13,7 +13,7 @@ from chainspace.errors import OutputExistsError
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):
     out = tmp_path_factory.mktemp("demo")
-    return out, run_demo(out, progress=False, seed=4, n_frames=40)
+    return out, run_demo(out, progress=False, seed=8, n_frames=40)
 
 
 def test_demo_writes_its_files(demo):
