@@ -43,7 +43,7 @@ DEMO_FILES = ("video.mp4", "video.truth.npz", "camera.json", "markers.csv", "tra
               "joint_angles.csv", "joint_angles.npz", "joint_angles.json", "validation.json", "validation.md")
 DEMO_SIZE = (640, 480)  # image width, height (px)
 DEMO_DISTANCE = 1.5  # camera distance in robot reaches: the smallest markers still span about 12 px
-_CLIP_VERSION = 1  # bump when the rendering changes, so cached clips are rendered again
+_CLIP_VERSION = 2  # bump when the rendering changes, so cached clips are rendered again
 
 
 def cache_dir() -> Path:
@@ -75,7 +75,11 @@ def demo_clip(n_frames: int = 300, seed: int = 8, *, size: tuple[int, int] = DEM
     trial = synthesize(chain, n_frames=n_frames, fps=30.0, camera="pinhole", noise_px=0.0, seed=seed,
                        trajectory="milling", image_size=size, distance_reaches=distance_reaches)
     w, h = size
-    clip = Path(cache or cache_dir()) / f"{robot}_{w}x{h}_{n_frames}f_seed{seed}_d{distance_reaches:g}_v{_CLIP_VERSION}.mp4"
+    import hashlib
+
+    # the URDF and the marker map are part of the clip's name: an edit of either renders it again
+    digest = hashlib.sha256(urdf.read_bytes() + Path(mmap.source).read_bytes()).hexdigest()[:8]
+    clip = Path(cache or cache_dir()) / f"{robot}_{w}x{h}_{n_frames}f_seed{seed}_d{distance_reaches:g}_v{_CLIP_VERSION}_{digest}.mp4"
     if clip.is_file() and truth_path(clip).is_file():
         _say(progress, f"      (cached clip {clip})")
         return clip, trial

@@ -14,7 +14,7 @@ def shipped(milling_arm_urdf):
 
 
 def test_shipped_map_names_links_of_the_urdf(shipped):
-    assert len(shipped) == 19 and shipped.ids == list(range(19))
+    assert len(shipped) == 23 and shipped.ids == list(range(23))
     assert {m.link for m in shipped.markers} >= {"base_link", "link_2", "link_4", "spindle"}
     # the marker's z axis is its normal: a marker on the base's +x side faces +x
     m0 = shipped.markers[0]
