@@ -96,3 +96,31 @@ def test_markers_on_a_rendered_frame_are_found_to_half_a_pixel(shipped, milling_
     err = np.linalg.norm(found - corners, axis=-1)
     assert np.isfinite(err[big]).all(), f"markers not found: {np.array(shipped.ids)[big & ~np.isfinite(err[:, 0])]}"
     assert err[big].max() < 0.5, np.round(err[big], 2)
+
+
+def test_markers_command_writes_tracks_the_marker_chain_reads(tmp_path, milling_arm_urdf, shipped):
+    """`chainspace markers` on a rendered clip writes a tracks CSV that load_tracks maps onto the marker
+    chain; a file that is no video is a clear error (exit code 2)."""
+    pytest.importorskip("pybullet")
+    from typer.testing import CliRunner
+
+    from chainspace import load_tracks
+    from chainspace.cli import app
+    from chainspace.synthetic.robot import synthesize
+    from chainspace.video.render import render_trial
+
+    trial = synthesize(milling_arm_urdf, n_frames=2, camera="pinhole", image_size=(640, 480), noise_px=0.0,
+                       seed=8, trajectory="milling", distance_reaches=1.5)
+    render_trial(trial, tmp_path / "clip.mp4", markers=shipped, seed=8)
+    out = tmp_path / "tracks.csv"
+    res = CliRunner().invoke(app, ["markers", str(tmp_path / "clip.mp4"), "--map", "milling_arm", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    names = sorted({line.split(",")[1] for line in out.read_text().splitlines()[1:]})
+    assert len(names) >= 3 and all(n.startswith("marker_") for n in names)
+    tracks, conf, _ = load_tracks(out, chain=marker_chain(milling_arm_urdf, shipped, names=names))
+    assert tracks.shape == (2, len(names), 2) and (conf > 0).any(axis=0).all()
+    assert (tmp_path / "tracks.corners.npz").is_file()
+    bad = tmp_path / "not_a_video.mp4"
+    bad.write_text("hello")
+    res = CliRunner().invoke(app, ["markers", str(bad), "--map", "milling_arm", "--out", str(tmp_path / "t2.csv")])
+    assert res.exit_code == 2 and "not a video" in res.output
