@@ -671,13 +671,49 @@ def bench(
             _say(f"wrote {p}")
 
 
+@app.command(epilog="Example: chainspace markers arm.mp4 --map robots/milling_arm.markers.csv --out tracks.csv")
+@_guarded
+def markers(
+    video: Annotated[Path, typer.Argument(help="A video file (MP4/MOV/AVI) or a folder of numbered images.")],
+    map: Annotated[str, typer.Option("--map", help="The marker map CSV (id,link,x,y,z,roll,pitch,yaw,size), or "
+                                                   "the name of a robot of robots/ that ships one (milling_arm).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="The tracks CSV to write (frame, joint, x, y, "
+                                                          "confidence; one point per marker seen).")],
+    urdf: Annotated[Optional[str], typer.Option(help="Check the map's links against this URDF (file or "
+                                                     "shipped name).")] = None,
+    overwrite: Overwrite = False,
+) -> None:
+    """Find the ArUco markers of a marker map in every frame of a video and write their centres as tracks.
+
+    Each marker is a point named marker_<id>, an extra frame of its link: fit the tracks with
+    chainspace.video.markers.marker_chain(urdf, map) (see the robot-from-video tutorial). The detected
+    corners go to <out>.corners.npz (corners (F, M, 4, 2) px, NaN where not seen).
+    """
+    from .io.descriptions import shipped_path
+    from .io.results import atomic_write, check_writable
+    from .video.markers import detect_markers, load_marker_map, save_marker_tracks, shipped_marker_map
+
+    map_path = Path(map) if Path(map).suffix else shipped_marker_map(map)
+    urdf_path = None if urdf is None else (Path(urdf) if Path(urdf).suffix else shipped_path(urdf))
+    mmap = load_marker_map(map_path, urdf=urdf_path)
+    corners_path = out.with_name(out.stem + ".corners.npz")
+    check_writable([out, corners_path], overwrite)
+    found = detect_markers(video, mmap, progress=sys.stderr.isatty())
+    save_marker_tracks(out, found, overwrite=overwrite)
+    with atomic_write(corners_path, "wb", overwrite) as fh:
+        np.savez_compressed(fh, corners=found.corners, names=np.array(found.names), fps=np.array(found.fps),
+                            image_size=np.array(found.image_size))
+    _say(f"wrote {out} ({len(found.seen)} of {len(found.names)} markers seen in {len(found.corners)} frames) "
+         f"and {corners_path}")
+
+
 @app.command(epilog="Example: chainspace demo --out demo-output --overwrite")
 @_guarded
 def demo(
     out: Annotated[Path, typer.Option("--out", "-o", help="Folder for everything the demo writes.")] =
     Path("demo-output"),
-    seed: Annotated[int, typer.Option(help="Random seed of the synthetic trial (the camera placement; "
-                                           "see chainspace.demo.run_demo).")] = 4,
+    seed: Annotated[int, typer.Option(help="Random seed of the rendered clip (the path's placement, the camera "
+                                           "and the textures; see chainspace.demo.run_demo).")] = 8,
     frames: Annotated[int, typer.Option(help="Frames of the filmed motion (fewer: a quicker look).")] = 300,
     overwrite: Overwrite = False,
 ) -> None:

@@ -9,6 +9,11 @@ hand, and the result drawn over the footage.
   ``chainspace track``.
 * :mod:`chainspace.video.picker`: a standalone HTML page to click the points on a frame
   (``chainspace pick``).
+* :mod:`chainspace.video.markers`: ArUco markers stuck on a robot's links (a marker map file), found in
+  every frame and turned into tracks of the chain (``chainspace markers``).
+* :mod:`chainspace.video.render`: a robot filmed by a pinhole camera, rendered with pybullet's CPU
+  renderer (textured links, markers, lens distortion) with the true pixels beside it: test footage
+  and the demo's video.
 * :mod:`chainspace.video.overlay`: :func:`draw_overlay` draws a fit or a reconstruction, reprojected
   through its own camera, over every frame (``chainspace overlay``).
 
