@@ -174,3 +174,27 @@ def test_floating_base_is_refused_by_the_fit_naming_the_joint(tmp_path):
         with pytest.raises(DescriptionError, match="joint 'free' is floating.*not supported") as info:
             call()
         assert "drone_arm.urdf" in str(info.value)
+
+
+# ---------------------------------------------------------------------------- batched kinematics
+@pytest.mark.parametrize("urdf", ["milling_arm_on_track", "mimic", "kinova"])
+def test_batched_kinematics_match_pinocchio(urdf, tmp_path, request):
+    """The fit's batched forward kinematics and Jacobians (numpy over all frames) give what a loop over
+    Pinocchio gives, on revolute, unaligned, prismatic, mimic and continuous joints."""
+    from chainspace.robot.kinematics import _random_q
+
+    if urdf == "mimic":
+        path = tmp_path / "mimic_gripper.urdf"
+        path.write_text(MIMIC_URDF)
+    elif urdf == "kinova":
+        path = request.getfixturevalue("example_urdf")("kinova")
+    else:
+        path = shipped_path(urdf)
+    robot = RobotKinematics(path, from_urdf(path))
+    assert robot._batch is not None
+    q = _random_q(robot, np.random.default_rng(1), 50)
+    pos, jac = robot.jacobians(q)
+    robot._batch = None  # the Pinocchio loop
+    pos_ref, jac_ref = robot.jacobians(q)
+    assert np.allclose(pos, pos_ref, atol=1e-12) and np.allclose(jac, jac_ref, atol=1e-12)
+    assert np.allclose(RobotKinematics(path, from_urdf(path)).positions(q), pos_ref, atol=1e-12)
