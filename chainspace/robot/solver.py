@@ -174,6 +174,20 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
     F, J, D = target.shape
     nv, nc = robot.nv, view.n_params
     tz = np.nan_to_num(target)
+    if not free_view.any() and len(view.S) == 1 and F > 1:
+        # the frames are independent problems: rows that repeat one (same start, target, weights and
+        # free directions; a branch search starts several ways that often meet) are solved once
+        key = np.concatenate([np.round(q, 9), tz.reshape(F, -1), w, free], 1)
+        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        if len(first) < 0.95 * F:
+            inverse = inverse.reshape(-1)
+            q1, _, rn1, pos1, conv1, it1 = _sequence_lm(robot, q[first], target[first], w[first], view.take(first),
+                                                        free[first], free_view, max_iter, tol, delta)
+            return q1[inverse], view, rn1[inverse], pos1[inverse], conv1[inverse], it1
+        problem = np.unique(key[:, q.shape[1]:], axis=0, return_inverse=True)[1].reshape(-1)
+    else:
+        problem = None
+    follow = np.arange(F)  # a row that met another row of the same problem follows it from there on
     eye_q, eye_c = np.eye(nv), np.eye(nc)
     fixed_q, fixed_c = (~free).astype(float), (~free_view).astype(float)
     independent = not free_view.any() or view.per_frame
@@ -240,8 +254,21 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
             active[a[~better][lam[a[~better]] > 1e10]] = False
         elif done.all():
             active[:] = False
+        if problem is not None and it in (3, 6, 10, 15, 21):
+            # starts of one problem that have met (within a micro-radian) go on as one: a branch
+            # search's many starts fall into a few basins
+            a = np.flatnonzero(active)
+            _, first, inv = np.unique(np.column_stack([problem[a], np.round(q[a], 6)]), axis=0, return_index=True,
+                                      return_inverse=True)
+            lead = a[first][inv.reshape(-1)]
+            follow[a] = lead
+            active[a[lead != a]] = False
         if not active.any():
             break
+    if problem is not None:
+        while not np.array_equal(follow[follow], follow):
+            follow = follow[follow]
+        return q[follow], view, np.linalg.norm(res, axis=-1)[follow], pos[follow], (~active)[follow], it
     return q, view, np.linalg.norm(res, axis=-1), pos, ~active, it
 
 
