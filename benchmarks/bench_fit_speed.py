@@ -62,8 +62,8 @@ def main(argv=None) -> int:
     for r in rows:
         target = TARGET.get(r["robot"])
         met = "-" if target is None else f">= {target:g} ({'met' if r['frames'] / r['wall'] >= target else 'missed'})"
-        print(f"| {r['robot']} | {r['nv']} | {r['frames']} | {r['frames'] / r['wall']:.2f} | {r['frames'] / r['cpu']:.2f} "
-              f"| {met} | {r['joint']:.3f} | {r['mm']:.2f} | {r['fit_3d']:.1f} | {r['refine_candidates']:.1f} "
+        fps, fps_cpu = r["frames"] / r["wall"], r["frames"] / r["cpu"]
+        print(f"| {r['robot']} | {r['nv']} | {r['frames']} | {fps:.2f} | {fps_cpu:.2f} | {met} | {r['joint']:.3f} | {r['mm']:.2f} | {r['fit_3d']:.1f} | {r['refine_candidates']:.1f} "
               f"| {r['smoothed_choice']:.1f} | {r['branch_search']:.1f} |")
     print(f"\nstatic camera, {a.noise:g} px noise, seed {a.seed}; fit_joint_angles alone (reconstruction not counted); "
           "stages in wall-clock seconds.")

@@ -17,7 +17,7 @@ sequence, the joint angles ``q`` that put those frames where the points were see
    NaN = not seen). By default one static camera for the whole sequence (a tripod in front of a robot
    on a fixed base); ``camera="per-frame"`` gives each frame its own. The normal equations have one
    block per frame plus the shared camera, which a Schur complement eliminates, so an iteration costs
-   one Pinocchio Jacobian pass over the frames and small batched solves. A prior on joint
+   one Jacobian pass over the frames (all frames batched) and small batched solves. A prior on joint
    accelerations (``accel_std``) then averages the pixel noise over neighbouring frames; its banded
    system is solved by a banded Cholesky factorisation. Where no tracked point a joint moves is seen,
    the prior alone carries the joint: between two sightings it bridges them smoothly, but before the

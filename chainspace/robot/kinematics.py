@@ -14,8 +14,9 @@ from ..errors import DescriptionError, DescriptionNotFoundError
 class RobotKinematics:
     """The Pinocchio model of a URDF with one frame per point of a chain, in the chain's order.
 
-    ``positions(q)`` and ``jacobians(q)`` are vectorised over frames in their interface (q is (F, nq));
-    the loop over frames is Pinocchio's. Points named in ``chain.metadata["extra_frames"]``
+    ``positions(q)`` and ``jacobians(q)`` are vectorised over frames (q is (F, nq)): for chains of 1-dof
+    joints all frames in one batched pass (:class:`_BatchedKinematics`, read off the Pinocchio model and
+    checked against it), otherwise a loop over Pinocchio. Points named in ``chain.metadata["extra_frames"]``
     ({name: (parent_link, [x, y, z])}) are added as operational frames.
     """
 
