@@ -174,3 +174,56 @@ def test_floating_base_is_refused_by_the_fit_naming_the_joint(tmp_path):
         with pytest.raises(DescriptionError, match="joint 'free' is floating.*not supported") as info:
             call()
         assert "drone_arm.urdf" in str(info.value)
+
+
+# ---------------------------------------------------------------------------- batched kinematics
+@pytest.mark.parametrize("urdf", ["milling_arm", "mimic", "kinova"])
+def test_batched_kinematics_match_pinocchio(urdf, tmp_path, request):
+    """The fit's batched forward kinematics and Jacobians (numpy over all frames) give what a loop over
+    Pinocchio gives, on revolute, unaligned, prismatic, mimic and continuous joints."""
+    from chainspace.robot.kinematics import _random_q
+
+    if urdf == "mimic":
+        path = tmp_path / "mimic_gripper.urdf"
+        path.write_text(MIMIC_URDF)
+    elif urdf == "kinova":
+        path = request.getfixturevalue("example_urdf")("kinova")
+    else:
+        path = shipped_path(urdf)
+    robot = RobotKinematics(path, from_urdf(path))
+    assert robot._batch is not None
+    q = _random_q(robot, np.random.default_rng(1), 50)
+    pos, jac = robot.jacobians(q)
+    robot._batch = None  # the Pinocchio loop
+    pos_ref, jac_ref = robot.jacobians(q)
+    assert np.allclose(pos, pos_ref, atol=1e-12) and np.allclose(jac, jac_ref, atol=1e-12)
+    assert np.allclose(RobotKinematics(path, from_urdf(path)).positions(q), pos_ref, atol=1e-12)
+
+
+def test_repeated_and_meeting_starts_are_solved_once_with_the_same_answers():
+    """The solver's shortcut for independent frames: a batch that repeats rows (one start, target and
+    weights twice), or whose starts meet, gives every row what solving it alone gives."""
+    from chainspace.robot.kinematics import _random_q
+    from chainspace.robot.solver import _sequence_lm
+    from chainspace.robot.views import _View, _rotvec
+
+    path = shipped_path("milling_arm")
+    robot = RobotKinematics(path, from_urdf(path))
+    rng = np.random.default_rng(2)
+    truth = _random_q(robot, rng, 4)
+    view = _View(np.array([500.0]), _rotvec(np.array([0.3, -0.2, 0.1]))[None], np.array([[400.0, 300.0]]),
+                 np.zeros(4, int))
+    u = view.apply(robot.positions(truth))[0] + rng.normal(0, 1.0, (4, robot.chain.n_joints, 2))
+    w = np.ones(u.shape[:2])
+    starts = np.concatenate([truth + 0.2, robot.clip(truth - 0.3)])  # two starts per frame
+    rows = np.array([0, 1, 2, 3, 4, 5, 6, 7, 0, 5, 5, 2])  # some repeated
+    args = (np.zeros(6, bool), 30, 1e-10, None)
+    alone = [_sequence_lm(robot, starts[k:k + 1], u[k % 4][None], w[:1], view.take(np.array([0])),
+                          np.ones((1, robot.nv), bool), *args) for k in range(8)]
+    q, _, rn, pos, conv, _ = _sequence_lm(robot, starts[rows], u[rows % 4], w[rows % 4], view.take(rows % 4),
+                                          np.ones((len(rows), robot.nv), bool), *args)
+    for i, k in enumerate(rows):
+        assert np.allclose(q[i], alone[k][0][0], atol=1e-5)
+        assert np.allclose(rn[i], alone[k][2][0], atol=1e-3)  # px
+        assert np.allclose(pos[i], robot.positions(q[i])[0], atol=1e-12)
+    assert np.array_equal(q[8], q[0]) and np.array_equal(q[9], q[5]) and np.array_equal(q[10], q[5])

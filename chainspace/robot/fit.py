@@ -17,7 +17,7 @@ sequence, the joint angles ``q`` that put those frames where the points were see
    NaN = not seen). By default one static camera for the whole sequence (a tripod in front of a robot
    on a fixed base); ``camera="per-frame"`` gives each frame its own. The normal equations have one
    block per frame plus the shared camera, which a Schur complement eliminates, so an iteration costs
-   one Pinocchio Jacobian pass over the frames and small batched solves. A prior on joint
+   one Jacobian pass over the frames (all frames batched) and small batched solves. A prior on joint
    accelerations (``accel_std``) then averages the pixel noise over neighbouring frames; its banded
    system is solved by a banded Cholesky factorisation. Where no tracked point a joint moves is seen,
    the prior alone carries the joint: between two sightings it bridges them smoothly, but before the
@@ -379,6 +379,14 @@ def fit_joint_angles(
         unseen2 = _unseen(robot, w2)
         never2 = unseen2 & unseen2.all(0)
 
+        timings["branch_search"] = 0.0
+
+        def branches(*args):  # _viterbi_reanchored, timed: the sequence-wide branch search's share
+            t = time.perf_counter()
+            out = _viterbi_reanchored(*args)
+            timings["branch_search"] += time.perf_counter() - t
+            return out
+
         def robust_cost(rn):
             return float((w2 * _huber(rn, delta_used[0])[0]).sum())
 
@@ -409,7 +417,7 @@ def fit_joint_angles(
             out = _sequence_lm(robot, q, tracks, w2, view, free, np.ones(6, bool), max_iter, tol, delta)
             for _ in range(2):  # then the branch of every frame, chosen for the whole sequence
                 sig = max(_noise_sigma(out[2], w2), px_floor)
-                q_fix, view_fix = _viterbi_reanchored(robot, out[0], tracks, w2, out[1], free, sig, c["gauge"],
+                q_fix, view_fix = branches(robot, out[0], tracks, w2, out[1], free, sig, c["gauge"],
                                                       per_frame, blind, unseen2)
                 if np.abs(_wrapped(robot, q_fix - out[0])).max() < 0.05:
                     break
@@ -486,7 +494,7 @@ def fit_joint_angles(
 
         def rebranch(r, out):
             sig = max(_noise_sigma(out[2], w2), px_floor)
-            return _viterbi_reanchored(robot, out[0], tracks, w2, out[1], r["free"], sig, r["c"]["gauge"], per_frame,
+            return branches(robot, out[0], tracks, w2, out[1], r["free"], sig, r["c"]["gauge"], per_frame,
                                        blind, unseen2)
 
         def reflected_start(r):
@@ -509,6 +517,7 @@ def fit_joint_angles(
                 alts = [refine_2d(reflection(r0, M)) for M in (depth_mirror(r0), np.diag([1.0, -1.0, 1.0]))]
                 results, mirror_tied = order(results + alts)
         r = results[0]
+        timings["refine_candidates"] = time.perf_counter() - t1
         sigma = _noise_sigma(r["out"][2], w2)
         if accel_std is not None and F >= 3 and not per_frame and sigma > 1e-6:
             # joint accelerations ~ N(0, accel_std^2) against pixel noise sigma: the prior's weight
@@ -520,6 +529,7 @@ def fit_joint_angles(
                                                 max(sigma, px_floor), max_iter, tol, seen_from_wrong_side,
                                                 reflected_start, rebranch, scored)
             n_iter += it
+            timings["smoothed_choice"] = time.perf_counter() - t1 - timings["refine_candidates"]
             results = [r] + [x for _, x in sorted(scored, key=lambda sx: sx[0]) if x is not r]
         if _starts is not None:  # the winner first, then the alternatives: the perspective fit's starts
             _starts.extend(dict(q=x["out"][0], view=x["out"][1], free=x["free"], free_prior=x["free_prior"],

@@ -14,8 +14,9 @@ from ..errors import DescriptionError, DescriptionNotFoundError
 class RobotKinematics:
     """The Pinocchio model of a URDF with one frame per point of a chain, in the chain's order.
 
-    ``positions(q)`` and ``jacobians(q)`` are vectorised over frames in their interface (q is (F, nq));
-    the loop over frames is Pinocchio's. Points named in ``chain.metadata["extra_frames"]``
+    ``positions(q)`` and ``jacobians(q)`` are vectorised over frames (q is (F, nq)): for chains of 1-dof
+    joints all frames in one batched pass (:class:`_BatchedKinematics`, read off the Pinocchio model and
+    checked against it), otherwise a loop over Pinocchio. Points named in ``chain.metadata["extra_frames"]``
     ({name: (parent_link, [x, y, z])}) are added as operational frames.
     """
 
@@ -83,6 +84,7 @@ class RobotKinematics:
                 x0 = int(getattr(jm, "idx_vExtended", jm.idx_v))
                 self._carried_by[k, x0:x0 + int(getattr(jm, "nvExtended", jm.nv))] = True
         self._mimic = nvx != self.nv or not np.array_equal(self._fold, np.eye(self.nv))
+        self._batch = _BatchedKinematics.of(self)
         # Where solvers start from "the rest pose": the rest pose with every revolute joint turned a
         # little, because rest poses are often singular (a stretched wrist, an upright arm), where the
         # gradient cannot tell a joint's sign.
@@ -244,33 +246,46 @@ class RobotKinematics:
         """World positions (F, J, 3) of the chain's points for configurations q (F, nq), metres."""
         pin, m, d = self.pin, self.model, self.data
         q = np.atleast_2d(q)
+        if self._batch is not None:
+            return self._points(*self._batch.placements(q))
         placements = np.empty((len(q), m.njoints, 4, 4))
         for f, qf in enumerate(q):
             pin.forwardKinematics(m, d, qf)
             placements[f] = [M.homogeneous for M in d.oMi.tolist()]
-        return self._points(placements)
+        return self._points(placements[..., :3, :3], placements[..., :3, 3])
 
-    def _points(self, placements: np.ndarray) -> np.ndarray:
-        """The chain's points (F, J, 3) from the joints' world placements (F, njoints, 4, 4): one product
-        for all points and frames, where reading each point's placement from Pinocchio takes a call."""
-        return (placements[:, self._parent_joint] @ self._in_parent[..., None])[..., :3, 0]
+    def _points(self, R: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """The chain's points (F, J, 3) from the joints' world rotations (F, njoints, 3, 3) and origins
+        (F, njoints, 3): one product for all points and frames, where reading each point's placement
+        from Pinocchio takes a call."""
+        k = self._parent_joint
+        return np.einsum("fjab,jb->fja", R[:, k], self._in_parent[:, :3]) + p[:, k]
 
     def jacobians(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Positions (F, J, 3) and translational frame Jacobians (F, J, 3, nv) in world axes."""
         pin, m, d = self.pin, self.model, self.data
         q = np.atleast_2d(q)
-        placements = np.empty((len(q), m.njoints, 4, 4))
-        spatial = np.empty((len(q), 6, self._fold.shape[0]))
-        for f, qf in enumerate(q):
-            pin.computeJointJacobians(m, d, qf)
-            spatial[f] = d.J
-            placements[f] = [M.homogeneous for M in d.oMi.tolist()]
+        if self._batch is not None:
+            R, p = self._batch.placements(q)
+            spatial = self._batch.world_jacobian(R, p)
+        else:
+            placements = np.empty((len(q), m.njoints, 4, 4))
+            spatial = np.empty((len(q), 6, self._fold.shape[0]))
+            for f, qf in enumerate(q):
+                pin.computeJointJacobians(m, d, qf)
+                spatial[f] = d.J
+                placements[f] = [M.homogeneous for M in d.oMi.tolist()]
+            R, p = placements[..., :3, :3], placements[..., :3, 3]
         # What pin.getFrameJacobian(LOCAL_WORLD_ALIGNED) returns: the world Jacobian's twist moved to each
         # point, on the joints that carry it; for all points and frames at once. One Pinocchio call per
         # point and frame cost more than the kinematics themselves.
-        pos = self._points(placements)
-        lin, ang = spatial[:, None, :3], spatial[:, None, 3:]
-        jac = (lin + np.cross(ang, pos[..., None], axis=2)) * self._carried_by[:, None]
+        pos = self._points(R, p)
+        lin, a, p = spatial[:, None, :3], spatial[:, None, 3:], pos[..., None]
+        # lin + ang x pos, by components (np.cross's axis juggling cost as much as the kinematics)
+        jac = lin + np.stack([a[:, :, 1] * p[:, :, 2] - a[:, :, 2] * p[:, :, 1],
+                              a[:, :, 2] * p[:, :, 0] - a[:, :, 0] * p[:, :, 2],
+                              a[:, :, 0] * p[:, :, 1] - a[:, :, 1] * p[:, :, 0]], 2)
+        jac *= self._carried_by[:, None]
         return pos, (jac @ self._fold if self._mimic else jac)
 
     def reach(self) -> float:
@@ -278,6 +293,122 @@ class RobotKinematics:
         qs = [self.q_rest, self.clip(np.where(self.limited, 0.5 * (self.lower + self.upper), self.q_rest))]
         p = self.positions(np.array(qs))
         return float(np.linalg.norm(p - p[:, :1], axis=-1).max())
+
+
+class _BatchedKinematics:
+    """Pinocchio's forward kinematics and world joint Jacobian (``computeJointJacobians``: ``oMi`` and
+    ``J``) for many configurations at once, in numpy, for chains of 1-dof joints (revolute, continuous,
+    prismatic, and mimics of them).
+
+    Why: the fit evaluates thousands of configurations per solver iteration (every frame times every
+    start), and a Python loop calling Pinocchio once per configuration cost more than all the
+    solver's algebra. Here a loop over the joints does all configurations in one batched product.
+    The model's own data decides everything: joint placements, and each joint's axis in its own frame
+    read off Pinocchio's Jacobian at the neutral configuration; :meth:`of` returns None for a model
+    it does not cover (the callers then loop over Pinocchio).
+    """
+
+    _KNOWN = ("JointModelR", "JointModelP", "JointModelMimic")
+
+    def __init__(self, parents, placements, kind, axis, idx_q, col, scaling, offset, nvx):
+        self.parents, self.M, self.kind, self.axis = parents, placements, kind, axis
+        self.idx_q, self.col, self.scaling, self.offset, self.nvx = idx_q, col, scaling, offset, nvx
+
+    @classmethod
+    def of(cls, robot: RobotKinematics) -> "_BatchedKinematics | None":
+        pin, m = robot.pin, robot.model
+        d = m.createData()
+        q0 = pin.neutral(m)
+        pin.computeJointJacobians(m, d, q0)
+        n = m.njoints
+        kind, axis = ["fixed"] * n, np.zeros((n, 3))
+        idx_q, col = np.zeros(n, int), np.zeros(n, int)
+        scaling, offset = np.ones(n), np.zeros(n)
+        for j in range(1, n):
+            jm = m.joints[j]
+            name = jm.shortname()
+            if not name.startswith(cls._KNOWN):
+                return None
+            col[j] = int(getattr(jm, "idx_vExtended", jm.idx_v))
+            idx_q[j] = jm.idx_q
+            nq = jm.nq
+            if name == "JointModelMimic":
+                e = jm.extract()
+                scaling[j], offset[j] = float(e.scaling), float(e.offset)
+                if scaling[j] == 0.0 or robot.continuous_v[jm.idx_v]:
+                    return None  # a mimic of a continuous joint: left to Pinocchio
+                nq = 1
+            elif jm.nv != 1 or nq not in (1, 2):
+                return None
+            twist = np.array(d.J[:, col[j]]) / scaling[j]
+            Rj = d.oMi[j].rotation
+            if np.linalg.norm(twist[3:]) > 1e-9:
+                kind[j], axis[j] = ("continuous" if nq == 2 else "revolute"), Rj.T @ twist[3:]
+            else:
+                kind[j], axis[j] = "prismatic", Rj.T @ twist[:3]
+        out = cls(np.array(m.parents), np.array([M.homogeneous for M in m.jointPlacements]), kind, axis, idx_q,
+                  col, scaling, offset, int(getattr(m, "nvExtended", m.nv)))
+        qr = np.array(robot.q_rest)
+        pin.forwardKinematics(m, d, qr)
+        R, p = out.placements(qr[None])
+        ref = np.array([M.homogeneous for M in d.oMi.tolist()])
+        if not (np.allclose(R[0], ref[:, :3, :3], atol=1e-9) and np.allclose(p[0], ref[:, :3, 3], atol=1e-9)):
+            return None  # a joint this class reads differently from Pinocchio: keep Pinocchio
+        return out
+
+    def placements(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World rotations (F, njoints, 3, 3) and origins (F, njoints, 3) of the joints (Pinocchio's
+        ``oMi``) for q (F, nq)."""
+        F, n = len(q), len(self.parents)
+        R, p = np.empty((F, n, 3, 3)), np.empty((F, n, 3))
+        R[:, 0], p[:, 0] = np.eye(3), 0.0
+        for j in range(1, n):
+            Rp, pp = R[:, self.parents[j]], p[:, self.parents[j]]
+            # the joint's frame at zero motion, then its motion (Rodrigues about its axis, or a slide
+            # along it): products with constant 3x3 matrices, as one matrix product over all frames
+            A = _right(Rp, self.M[j, :3, :3])
+            p[:, j] = pp + Rp @ self.M[j, :3, 3]
+            if self.kind[j] == "prismatic":
+                R[:, j] = A
+                p[:, j] += (self.scaling[j] * q[:, self.idx_q[j]] + self.offset[j])[:, None] * (A @ self.axis[j])
+                continue
+            if self.kind[j] == "fixed":
+                R[:, j] = A
+                continue
+            if self.kind[j] == "continuous":
+                c, s = q[:, self.idx_q[j]], q[:, self.idx_q[j] + 1]
+            else:
+                th = self.scaling[j] * q[:, self.idx_q[j]] + self.offset[j]
+                c, s = np.cos(th), np.sin(th)
+            a = self.axis[j]
+            K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+            R[:, j] = A + s[:, None, None] * _right(A, K) + (1 - c)[:, None, None] * _right(A, K @ K)
+        return R, p
+
+    def world_jacobian(self, R: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Pinocchio's world joint Jacobian ``J`` (F, 6, nv (extended)) from :meth:`placements`: per joint
+        column, the linear velocity of the point at the world origin and the angular velocity, as
+        ``computeJointJacobians`` gives it."""
+        F = len(R)
+        J = np.zeros((F, 6, self.nvx))
+        for j in range(1, len(self.parents)):
+            if self.kind[j] == "fixed":
+                continue
+            w = self.scaling[j] * R[:, j] @ self.axis[j]  # (F, 3) axis in world axes
+            if self.kind[j] == "prismatic":
+                J[:, :3, self.col[j]] = w
+            else:
+                o = p[:, j]
+                J[:, :3, self.col[j]] = np.stack([o[:, 1] * w[:, 2] - o[:, 2] * w[:, 1],
+                                                  o[:, 2] * w[:, 0] - o[:, 0] * w[:, 2],
+                                                  o[:, 0] * w[:, 1] - o[:, 1] * w[:, 0]], -1)
+                J[:, 3:, self.col[j]] = w
+        return J
+
+
+def _right(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """A @ B for a stack A (F, 3, 3) and one B (3, 3), as one (3F, 3) x (3, 3) product."""
+    return (A.reshape(-1, 3) @ B).reshape(A.shape)
 
 
 def _check_supported_joints(model, path) -> None:

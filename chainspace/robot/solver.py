@@ -28,15 +28,23 @@ def _normal_equations(view: _View, jac: np.ndarray, y: np.ndarray, res: np.ndarr
     parameters: those of the view's step (:meth:`_View.derivatives`, :meth:`_PinholeView.derivatives`).
     """
     F, J, D = res.shape
-    dx, dc = view.derivatives(y)
-    Jq = (dx @ jac * free[:, None, None, :]).reshape(F, J * D, -1)
-    Jc = (dc * free_view).reshape(F, J * D, -1)
+    if len(view.S) == 1 and isinstance(view, _View):
+        # one view for every frame: d prediction / d point is one (D, 3) matrix, applied to all the
+        # point Jacobians in a single product rather than one tiny product per point and frame
+        Jq = np.moveaxis(np.tensordot(view.matrices()[0], jac, axes=([1], [2])), 0, 2)
+    else:
+        Jq = view.derivatives(y)[0] @ jac
+    Jq = (Jq * free[:, None, None, :]).reshape(F, J * D, -1)
     # batched products over the stacked (point, axis) rows: einsum's three-operand loops were the
     # solver's main cost after the kinematics
     JqW = (Jq * np.repeat(ww, D, axis=1)[..., None]).transpose(0, 2, 1)
-    JcW = (Jc * np.repeat(ww, D, axis=1)[..., None]).transpose(0, 2, 1)
     r = res.reshape(F, J * D, 1)
-    Hqq, Hqc, gq = JqW @ Jq, JqW @ Jc, (JqW @ r)[..., 0]
+    Hqq, gq = JqW @ Jq, (JqW @ r)[..., 0]
+    if not free_view.any():  # the view held: its blocks are not needed
+        return Hqq, None, gq, None, None
+    Jc = (view.derivatives(y)[1] * free_view).reshape(F, J * D, -1)
+    JcW = (Jc * np.repeat(ww, D, axis=1)[..., None]).transpose(0, 2, 1)
+    Hqc = JqW @ Jc
     C, nc = len(view.S), view.n_params
     Hcc, gc = np.zeros((C, nc, nc)), np.zeros((C, nc))
     np.add.at(Hcc, view.cam_of, JcW @ Jc)
@@ -166,6 +174,20 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
     F, J, D = target.shape
     nv, nc = robot.nv, view.n_params
     tz = np.nan_to_num(target)
+    if not free_view.any() and len(view.S) == 1 and F > 1:
+        # the frames are independent problems: rows that repeat one (same start, target, weights and
+        # free directions; a branch search starts several ways that often meet) are solved once
+        key = np.concatenate([np.round(q, 9), tz.reshape(F, -1), w, free], 1)
+        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        if len(first) < 0.95 * F:
+            inverse = inverse.reshape(-1)
+            q1, _, rn1, pos1, conv1, it1 = _sequence_lm(robot, q[first], target[first], w[first], view.take(first),
+                                                        free[first], free_view, max_iter, tol, delta)
+            return q1[inverse], view, rn1[inverse], pos1[inverse], conv1[inverse], it1
+        problem = np.unique(key[:, q.shape[1]:], axis=0, return_inverse=True)[1].reshape(-1)
+    else:
+        problem = None
+    follow = np.arange(F)  # a row that met another row of the same problem follows it from there on
     eye_q, eye_c = np.eye(nv), np.eye(nc)
     fixed_q, fixed_c = (~free).astype(float), (~free_view).astype(float)
     independent = not free_view.any() or view.per_frame
@@ -188,11 +210,17 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
         Hqq, Hqc, gq, Hcc, gc = _normal_equations(va, jac[a], y[a], res[a], ww, free[a], free_view)
         Ca = len(va.S)
         dq_diag = np.einsum("fvv->fv", Hqq)
-        dc_diag = np.einsum("cdd->cd", Hcc)
         floor_q = 1e-6 * dq_diag.mean(1, keepdims=True) + 1e-30
         for _ in range(1 if independent else 12):
             la = lam[a]
             Hq = Hqq + (la[:, None] * (dq_diag + floor_q) + fixed_q[a])[:, :, None] * eye_q
+            if Hcc is None:  # the view held: frame by frame, no view step
+                dq = -np.linalg.solve(Hq, gq[..., None])[..., 0] * free[a]
+                q_t, v_t = robot.integrate(q[a], dq), va
+                p_t, j_t, y_t, r_t, c_t = evaluate(q_t, v_t, a)
+                better = c_t <= cost[a]
+                break
+            dc_diag = np.einsum("cdd->cd", Hcc)
             lc = la if Ca == len(a) else la[:1]
             Hc = Hcc + (lc[:, None] * (dc_diag + 1e-12) + fixed_c)[:, :, None] * eye_c
             Hq_inv = np.linalg.inv(Hq)
@@ -226,8 +254,21 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
             active[a[~better][lam[a[~better]] > 1e10]] = False
         elif done.all():
             active[:] = False
+        if problem is not None and it in (3, 6, 10, 15, 21):
+            # starts of one problem that have met (within a micro-radian) go on as one: a branch
+            # search's many starts fall into a few basins
+            a = np.flatnonzero(active)
+            _, first, inv = np.unique(np.column_stack([problem[a], np.round(q[a], 6)]), axis=0, return_index=True,
+                                      return_inverse=True)
+            lead = a[first][inv.reshape(-1)]
+            follow[a] = lead
+            active[a[lead != a]] = False
         if not active.any():
             break
+    if problem is not None:
+        while not np.array_equal(follow[follow], follow):
+            follow = follow[follow]
+        return q[follow], view, np.linalg.norm(res, axis=-1)[follow], pos[follow], (~active)[follow], it
     return q, view, np.linalg.norm(res, axis=-1), pos, ~active, it
 
 

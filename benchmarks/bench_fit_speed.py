@@ -1,0 +1,74 @@
+"""Speed of the robot fit (issue 19): frames per second of fit_joint_angles, with its accuracy and stages.
+
+    python benchmarks/bench_fit_speed.py                       # UR10, Panda, xArm7; 300 frames; static camera, 1 px
+    python benchmarks/bench_fit_speed.py --robots UR10 --frames 100
+
+Per robot: one synthetic trial (chainspace.synthesize, seed 0), reconstructed from its tracks, then
+fit_joint_angles timed alone (the reconstruction is not counted). Frames per second are given on the
+wall clock and on the process's CPU time (on a shared machine the wall clock also counts the other
+processes' turns); targets (issue 19): >= 30 frames/s for the 6-axis arm, >= 10 for the 7-axis arms.
+Accuracy as in benchmarks/bench_robots.py: the worst judged joint's RMS (degrees) and the fitted
+robot's mean 3D error (mm). Stages (seconds, wall): the 3D fit, the refinement of the candidate motions
+on the tracks, the smoothed choice among them, and the sequence-wide branch search (Viterbi passes on
+the tracks) that runs inside both.
+
+Prints one markdown table.
+"""
+
+import argparse
+import sys
+import time
+import warnings
+
+TARGET = {"UR10": 30.0, "milling arm": 30.0, "Panda": 10.0, "xArm7": 10.0}
+
+
+def run(name: str, n_frames: int, noise: float, seed: int) -> dict:
+    from chainspace.bench.robots import robot_chain, trial_errors
+    from chainspace.reconstruction.pipeline import reconstruct
+    from chainspace.robot.fit import fit_joint_angles
+    from chainspace.synthetic.robot import synthesize
+
+    chain = robot_chain(name)
+    trial = synthesize(chain, n_frames=n_frames, noise_px=noise, seed=seed)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = reconstruct(trial.tracks, chain, seed=seed)
+        t0, c0 = time.perf_counter(), time.process_time()
+        fit = fit_joint_angles(rec, camera="static")
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    joint, e3 = trial_errors(fit, trial)
+    return dict(robot=name, nv=len(fit.joint_names), frames=n_frames, wall=wall, cpu=cpu, joint=joint,
+                mm=1000 * e3, **{k: fit.timings.get(k, float("nan")) for k in
+                                 ("fit_3d", "refine_candidates", "smoothed_choice", "branch_search")})
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--robots", nargs="+", default=["UR10", "Panda", "xArm7"])
+    p.add_argument("--frames", type=int, default=300)
+    p.add_argument("--noise", type=float, default=1.0, help="pixel noise (default 1)")
+    p.add_argument("--seed", type=int, default=0)
+    a = p.parse_args(argv)
+    rows = []
+    for name in a.robots:
+        r = run(name, a.frames, a.noise, a.seed)
+        print(f"{name}: {r['frames'] / r['wall']:.2f} frames/s wall, {r['frames'] / r['cpu']:.2f} CPU", file=sys.stderr,
+              flush=True)
+        rows.append(r)
+    print("| robot | joints | frames | frames/s (wall) | frames/s (CPU) | target | worst joint RMS deg | 3D error mm "
+          "| 3D fit s | refine candidates s | smoothed choice s | of which branch search s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        target = TARGET.get(r["robot"])
+        met = "-" if target is None else f">= {target:g} ({'met' if r['frames'] / r['wall'] >= target else 'missed'})"
+        fps, fps_cpu = r["frames"] / r["wall"], r["frames"] / r["cpu"]
+        print(f"| {r['robot']} | {r['nv']} | {r['frames']} | {fps:.2f} | {fps_cpu:.2f} | {met} | {r['joint']:.3f} | {r['mm']:.2f} | {r['fit_3d']:.1f} | {r['refine_candidates']:.1f} "
+              f"| {r['smoothed_choice']:.1f} | {r['branch_search']:.1f} |")
+    print(f"\nstatic camera, {a.noise:g} px noise, seed {a.seed}; fit_joint_angles alone (reconstruction not counted); "
+          "stages in wall-clock seconds.")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
