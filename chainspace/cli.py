@@ -260,6 +260,10 @@ class Suite(str, Enum):
 
 
 Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace existing output files.")]
+Markers = Annotated[Optional[str], typer.Option(
+    "--markers", metavar="MAP",
+    help="The tracks are ArUco marker centres ('chainspace markers'): the chain is the URDF's markers of "
+         "this marker map CSV (or a shipped robot's name), those the tracks file names.")]
 Intrinsics = Annotated[Optional[Path], typer.Option(
     help="The camera's calibration: OpenCV .yaml/.yml/.xml (calibrateCamera's output), ROS camera_info "
          ".yaml or .json with K and dist.")]
@@ -349,6 +353,7 @@ def reconstruct(
     html: Annotated[Optional[Path], typer.Option(help="Also write a standalone HTML viewer.")] = None,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
     extra_frame: ExtraFrames = None,
+    markers: Markers = None,
     overwrite: Overwrite = False,
 ) -> None:
     """Reconstruct 3D motion from the 2D tracks of a chain seen by one camera.
@@ -369,7 +374,10 @@ def reconstruct(
     extras = _parse_extra_frames(extra_frame)
     _check_outputs([out / f"reconstruction.{x}" for x in ("npz", "csv", "json")] + [bvh, html], overwrite)
     intrinsics_kw = _intrinsics_kwargs(run, camera, "reconstruct")
-    kc = load_chain(chain, **_extra_frame_options(chain, extras))
+    if markers is not None:
+        kc = _marker_chain(_urdf_path(chain), markers, tracks, format)
+    else:
+        kc = load_chain(chain, **_extra_frame_options(chain, extras))
     W, conf, _ = load_tracks(tracks, chain=kc, format=format, image_size=image_size)
     X0 = None if init_pose is None else _load_array(init_pose, "initial pose", ("init_pose", "pose"))
     X_true = _load_poses(truth, kc)
@@ -408,6 +416,7 @@ def fit(
     fps: Annotated[float, typer.Option(help="Frame rate of the motion (the fit's motion prior and the "
                                             "viewer).")] = 30.0,
     extra_frame: ExtraFrames = None,
+    markers: Markers = None,
     overwrite: Overwrite = False,
 ) -> None:
     """Fit the robot's joint angles (Pinocchio) to a reconstruction or to 2D tracks.
@@ -443,7 +452,10 @@ def fit(
         from .reconstruction.pipeline import reconstruct as run
         from .io.tracks import load_tracks
 
-        kc = load_chain(urdf_path, **_extra_frame_options(urdf_path, extras))
+        if markers is not None:
+            kc = fit_chain = _marker_chain(urdf_path, markers, source, format)
+        else:
+            kc = load_chain(urdf_path, **_extra_frame_options(urdf_path, extras))
         W, conf, _ = load_tracks(source, chain=kc, format=format)
         with _status(f"reconstructing {W.shape[0]} frames of {kc.name}"):
             rec = run(W, kc, confidence=conf, **_intrinsics_kwargs(run, pinhole, "reconstruct"))
@@ -460,6 +472,18 @@ def fit(
     if not np.all(result.converged):
         raise _fail(f"{int(np.sum(~np.asarray(result.converged)))} frames did not converge: {result.message}",
                     EXIT_NOT_GOOD)
+
+
+def _marker_chain(urdf: str | Path, markers: str, tracks: Path, format: str | None) -> Any:
+    """The chain of the markers of a marker map that a tracks file names (each an extra frame of its link)."""
+    from .io.tracks import load_tracks
+    from .video.markers import load_marker_map, marker_chain, shipped_marker_map
+
+    if Path(str(urdf)).suffix.lower() != ".urdf":
+        raise TrackError(f"--markers needs a URDF chain; {urdf} is not a .urdf")
+    map_path = Path(markers) if Path(markers).suffix else shipped_marker_map(markers)
+    _, _, names = load_tracks(tracks, format=format)
+    return marker_chain(urdf, load_marker_map(map_path, urdf=urdf), names=names)
 
 
 def _frustum(camera: Any) -> dict[str, Any]:

@@ -120,6 +120,16 @@ def test_markers_command_writes_tracks_the_marker_chain_reads(tmp_path, milling_
     tracks, conf, _ = load_tracks(out, chain=marker_chain(milling_arm_urdf, shipped, names=names))
     assert tracks.shape == (2, len(names), 2) and (conf > 0).any(axis=0).all()
     assert (tmp_path / "tracks.corners.npz").is_file()
+    # the tracks go on from the shell: --markers makes the chain of the markers the file names
+    res = CliRunner().invoke(app, ["reconstruct", str(out), "--chain", "milling_arm", "--markers", "milling_arm",
+                                   "--out", str(tmp_path / "rec")])
+    assert res.exit_code in (0, 1), res.output  # 1: two frames may not converge; the chain is what is checked
+    from chainspace import load_results
+
+    assert sorted(load_results(tmp_path / "rec" / "reconstruction.npz").chain.joints) == names
+    res = CliRunner().invoke(app, ["reconstruct", str(out), "--chain", "coco17", "--markers", "milling_arm",
+                                   "--out", str(tmp_path / "rec2")])
+    assert res.exit_code == 2 and "--markers needs a URDF chain" in res.output
     bad = tmp_path / "not_a_video.mp4"
     bad.write_text("hello")
     res = CliRunner().invoke(app, ["markers", str(bad), "--map", "milling_arm", "--out", str(tmp_path / "t2.csv")])
