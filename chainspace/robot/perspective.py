@@ -1,6 +1,8 @@
 """The perspective refinement of a robot fit: one static pinhole camera (known intrinsics, or the
 focal length estimated) fitted with the joint angles on the reprojection error in pixels, started from
 the weak-perspective fit's winner and its mirror/flip alternatives (see :mod:`chainspace.robot.fit`).
+Perspective then decides the depth mirrors the weak fit left open: under the winner's camera the
+other starts' branches beyond each joint are tried on the winner's arm (:func:`_grafted`).
 """
 
 from __future__ import annotations
@@ -49,7 +51,8 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
                        K: np.ndarray | None, image_size, accel_std: float | None, fps: float,
                        speed_decay_s: float | None, unseen: np.ndarray, max_iter: int, tol: float,
                        weak_sse: float, smooth: bool) -> dict:
-    """Fit the pinhole camera and joint angles from each weak-perspective start; keep the lowest.
+    """Fit the pinhole camera and joint angles from each weak-perspective start, and from the best
+    graft of the others onto the winner (:func:`_grafted`); keep the lowest objective.
 
     starts: dicts with q (F, nq), view (weak :class:`_View`), free, free_prior (F, nv), delta (Huber).
     K (3, 3) known intrinsics (tracks already undistorted), or None with ``image_size`` (w, h): the
