@@ -61,6 +61,20 @@ def test_pose_from_weak_inverts_the_weak_camera():
     np.testing.assert_allclose(t2, t, atol=1e-12)
 
 
+
+def test_pose_from_weak_inverts_a_stack_of_weak_cameras_on_rays():
+    # frames first, camera None: the tracks are rays (f = 1, c = 0), as the human pipeline uses it
+    poses = [_pose(k) for k in range(4)]
+    R = np.stack([p[0] for p in poses])
+    t = np.stack([p[1] + [0.0, 0.0, k] for k, p in enumerate(poses)])
+    centre = np.random.default_rng(0).normal(scale=0.3, size=(4, 3))
+    s = 1.0 / (np.einsum("fij,fj->fi", R, centre) + t)[:, 2]
+    R2, t2 = pose_from_weak(s[:, None, None] * R[:, :2], s[:, None] * t[:, :2], None, centre)
+    np.testing.assert_allclose(R2, R, atol=1e-12)
+    np.testing.assert_allclose(t2, t, atol=1e-12)
+    with pytest.raises(CameraError, match="do not match"):
+        pose_from_weak(R[:, :2], t[:, :2], None, centre[:2])
+
 def _chain():
     names = ["pelvis", "spine", "head", "l_hip", "l_knee", "r_hip", "r_knee"]
     bones = [("pelvis", "spine"), ("spine", "head"), ("pelvis", "l_hip"), ("l_hip", "l_knee"),

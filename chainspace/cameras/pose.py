@@ -19,38 +19,42 @@ __all__ = ["pose_from_weak"]
 
 
 def pose_from_weak(P: Any, t2d: Any, camera: Any, centre: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Pinhole pose ``(R (3, 3), t (3,))`` matching one weak-perspective camera.
+    """Pinhole pose ``(R (..., 3, 3), t (..., 3))`` matching weak-perspective cameras, one per
+    leading index (a frame), or one camera without a leading axis.
 
     Parameters
     ----------
-    P : (2, 3) array-like
-        Weak-perspective camera ``s R[:2]``, pixels per scene unit.
-    t2d : (2,) array-like
-        Its image translation, pixels.
-    camera : PinholeCamera
-        The intrinsics; the mean focal length ``(fx + fy) / 2`` is taken for ``f``.
-    centre : (3,) array-like
-        The point the weak camera was fitted about (the subject's middle), scene units.
+    P : (..., 2, 3) array-like
+        Weak-perspective cameras ``s R[:2]``, pixels per scene unit.
+    t2d : (..., 2) array-like
+        Their image translations, pixels.
+    camera : PinholeCamera or None
+        The intrinsics; the mean focal length ``(fx + fy) / 2`` is taken for ``f``. None: the
+        tracks are the camera's rays (normalised image coordinates x/z, y/z: ``f = 1``, ``c = 0``).
+    centre : (..., 3) array-like
+        The point each weak camera was fitted about (the subject's middle), scene units.
 
     Returns
     -------
     R, t
-        ``x_cam = R x + t`` in scene units (metres when the scene is).
+        ``x_cam = R x + t`` in scene units (metres when the scene is); the centre's depth is
+        ``f / s``.
     """
     P = np.asarray(P, dtype=float)
-    t2d = np.asarray(t2d, dtype=float).reshape(2)
-    centre = np.asarray(centre, dtype=float).reshape(3)
-    if P.shape != (2, 3) or not np.all(np.isfinite(P)) or not np.all(np.isfinite(t2d)):
+    t2d = np.asarray(t2d, dtype=float)
+    centre = np.asarray(centre, dtype=float)
+    if P.shape[-2:] != (2, 3) or not np.all(np.isfinite(P)) or not np.all(np.isfinite(t2d)):
         raise CameraError(f"a weak-perspective camera must be a finite (2, 3) matrix, not shape {P.shape}")
-    s = float(np.linalg.norm(P, axis=1).mean())
-    if s <= 0:
+    if t2d.shape != P.shape[:-2] + (2,) or centre.shape != P.shape[:-2] + (3,):
+        raise CameraError(f"weak cameras {P.shape}, translations {t2d.shape} and centres {centre.shape} do not "
+                          "match: expected (..., 2, 3), (..., 2), (..., 3)")
+    s = np.linalg.norm(P, axis=-1).mean(axis=-1)
+    if not np.all(s > 0):
         raise CameraError("the weak-perspective camera has zero scale")
-    R = complete_rotation(P / np.linalg.norm(P, axis=1, keepdims=True))
+    R = complete_rotation(P / np.linalg.norm(P, axis=-1, keepdims=True))
     u, _, vt = np.linalg.svd(R)  # rows orthonormal up to the fit's tolerance; make R exactly a rotation
     R = u @ vt
-    f = 0.5 * (camera.fx + camera.fy)
-    depth = f / s
-    t = np.empty(3)
-    t[:2] = (t2d - [camera.cx, camera.cy]) / s
-    t[2] = depth - R[2] @ centre
+    f, c = (1.0, np.zeros(2)) if camera is None else (0.5 * (camera.fx + camera.fy), np.array([camera.cx, camera.cy]))
+    t = np.concatenate([(t2d - c) / s[..., None],
+                        (f / s - np.einsum("...i,...i->...", R[..., 2, :], centre))[..., None]], axis=-1)
     return R, t

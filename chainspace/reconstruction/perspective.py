@@ -32,6 +32,17 @@ camera scales were too rough for it (1-6.5 % off, no gain); from the image bone 
 (:func:`depth_from_bones`, 0.3-1 % off) the static-camera benchmark's tune set (CMU 35_01, 35_02;
 straight, turning, towards/away; 0 and 2 px) went from 45.5 to 37.5 mm on average (turning at 2 px
 66.9 -> 41.2 mm), the same as with the true depths (37.5 mm).
+
+Tried and not kept (2026-12-02, CMU 35_01): a bundle adjustment of the whole sequence on the real
+camera's rays (per-frame root and bones, shared lengths, Huber data term, second differences in
+time, a banded Gauss-Newton) started from the weak result. It lowered its objective but raised the
+3D error (straight walk, 0 px: 38.0 -> 51.6 mm; from the KCS stage 35.3 -> 46.9 mm), while the
+true motion's objective is ten times lower (0.0015 against 0.017): the objective is right, the start
+is in the wrong basin (ankles and wrists, i.e. depth choices). A POSIT pass (rays corrected with
+a reconstruction's depths, the weak stages rerun) then the adjustment gave 24.2 mm on that walk
+(16.0 with the true depths), but on the turning walk at 2 px 43.3 -> 56.5 mm. A depth-choice
+search under perspective (as refine.py's Viterbi over signs) is what is missing, not a better
+local solver.
 """
 
 from __future__ import annotations
@@ -41,7 +52,7 @@ from typing import Any
 import numpy as np
 
 
-__all__ = ["centring_rotations", "turn_rays", "depth_from_bones", "camera_points", "perspective_refine"]
+__all__ = ["centring_rotations", "turn_rays", "depth_from_bones", "perspective_refine"]
 
 
 def centring_rotations(rays: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -101,27 +112,6 @@ def depth_from_bones(chain: Any, rays: np.ndarray, lengths: np.ndarray, *, quant
     z = np.interp(t, t[good], 1.0 / inv[good])
     z = median_filter(z, size=min(median_frames, len(z)), mode="nearest")
     return gaussian_filter1d(z, sigma_frames, mode="nearest")
-
-
-def camera_points(poses: np.ndarray, cameras: np.ndarray, translations: np.ndarray,
-                  weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The weak-perspective reconstruction on rays placed in camera axes.
-
-    Returns ``(points (F, J, 3), depth offsets d (F, J), centroid depths Z (F,))``: with
-    ``P_k = s_k R_k[:2]``, ``r3 = r1 x r2``, ``d_kj = r3 . X_kj`` minus its weighted mean over the
-    frame's joints, ``Z_k = 1 / s_k``, the points are ``(R_k X_kj)[:2] + Z_k t_k`` and depth
-    ``Z_k + d_kj`` (the weak-perspective model's image is their orthographic view scaled by s_k)."""
-    s = np.sqrt((cameras**2).sum(-1)).mean(-1)  # (F,)
-    r1 = cameras[:, 0] / np.linalg.norm(cameras[:, 0], axis=-1, keepdims=True)
-    r2 = cameras[:, 1] / np.linalg.norm(cameras[:, 1], axis=-1, keepdims=True)
-    r3 = np.cross(r1, r2)
-    d = np.einsum("fjc,fc->fj", poses, r3)
-    w = np.where(np.isfinite(d), weights, 0.0)
-    m = (w * np.nan_to_num(d)).sum(1) / np.maximum(w.sum(1), 1e-300)
-    d = d - m[:, None]
-    Z = 1.0 / np.maximum(s, 1e-300)
-    xy = np.einsum("fjc,fic->fji", poses, np.stack([r1, r2], 1)) + Z[:, None, None] * translations[:, None, :]
-    return np.concatenate([xy, (Z[:, None] + d)[..., None]], -1), d, Z
 
 
 def perspective_refine(rays: np.ndarray, weights: np.ndarray, D: np.ndarray, bones: np.ndarray, root: np.ndarray,

@@ -480,7 +480,8 @@ def _run_perspective(W_px, c, given, X0, T, chain, method, max_iter, tol, progre
                      camera, n_pass):
     """:func:`_run` on the camera's rays, corrected for perspective pass after pass (see
     :mod:`chainspace.reconstruction.perspective`)."""
-    from .perspective import camera_points, centring_rotations, depth_from_bones, perspective_refine, turn_rays
+    from ..cameras.pose import pose_from_weak
+    from .perspective import centring_rotations, depth_from_bones, perspective_refine, turn_rays
 
     rays = camera.rays(W_px)
     # a ray whose distortion does not land back on its pixel has no undistorted position (past the
@@ -526,10 +527,15 @@ def _run_perspective(W_px, c, given, X0, T, chain, method, max_iter, tol, progre
             timings[k] = timings.get(k, 0.0) + v
         rec.cameras = rec.cameras / gain[:, None, None]  # back to the real rays' scales
         rec.translations = rec.translations / gain[:, None]
-        pts, d, Z = camera_points(rec.poses, rec.cameras, rec.translations, c)
+        # the weak cameras on rays placed as pinhole poses about the frame's weighted centroid, whose
+        # depth is 1 / scale: d is each joint's depth relative to it
+        centre = np.einsum("fj,fjc->fc", c, rec.poses) / np.maximum(c.sum(1), 1e-300)[:, None]
+        R, t = pose_from_weak(rec.cameras, rec.translations, None, centre)
+        pts = np.einsum("fij,fkj->fki", R, rec.poses) + t[:, None]
+        scale = np.sqrt((rec.cameras**2).sum(-1)).mean(-1)
+        d = pts[..., 2] - 1.0 / scale[:, None]
         pts = pts @ Q  # virtual camera axes -> the real camera's
         persp["reprojection"].append(_rms(W_px, c, camera.project(pts)))
-        scale = np.sqrt((rec.cameras**2).sum(-1)).mean(-1)
         corrected = rays * (1.0 + scale[:, None] * d)[..., None]
         seen = c > 0
         size = _spread(rays, seen)
