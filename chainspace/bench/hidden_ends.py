@@ -48,7 +48,7 @@ def run_hidden_ends(quick: bool = False, progress: Callable[[str], None] | None 
     wrist = [chain.joint_index(n) for n in WRIST]
     rows = []
     for k in range(n_trials or (2 if quick else 8)):
-        trial = synthesize(chain, n_frames=n_frames, noise_px=noise_px, seed=100 + k)
+        trial = synthesize(chain, n_frames=n_frames, noise_px=noise_px, seed=100 + k, camera="static")
         for end, frames in (("last", slice(n_frames - hidden_frames, None)), ("first", slice(0, hidden_frames))):
             tracks = trial.tracks.copy()
             tracks[frames, wrist] = np.nan

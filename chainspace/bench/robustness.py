@@ -256,7 +256,7 @@ def _sweep_arm(quick: bool, n_seeds: int, n_frames: int, base_noise: float,
         e_rec, e_fit, e_q, hid, secs, failed = [], [], [], [], [], []
         for s in range(n_seeds):
             trial = synthesize(chain, n_frames=n_frames, noise_px=noise, seed=_seed("arm", s),
-                               trajectory=trajectory)
+                               trajectory=trajectory, camera="static")
             rng = np.random.default_rng(_seed("arm", s, sweep, missing))
             hidden = (hide_random(trial.tracks, missing, rng) if sweep == "random"
                       else hide_limbs(trial.tracks, missing, groups, trial.fps, rng) if sweep == "limb"
