@@ -35,16 +35,19 @@ def main(argv=None) -> int:
     robots = a.robots or (["milling_arm", "ur5"] if a.quick else list(ROBOTS))
     settings = a.settings or (["full, above"] if a.quick else list(DEFAULT_SETTINGS))
     frames = a.frames or (20 if a.quick else 60)
+    def save(runs, first=[True]):  # every run as it comes: a long table survives an interruption
+        from chainspace.io.results import atomic_write
+
+        with atomic_write(Path(a.json), overwrite=not first[0]) as fh:
+            fh.write(json.dumps(runs, indent=1, default=float))
+        first[0] = False
+
     if a.from_json:
         runs = [r for f in a.from_json for r in json.loads(Path(f).read_text())]
     else:
         runs = run_full_range(robots, settings, camera=a.camera, n_frames=frames, seeds=a.seeds,
-                              progress=lambda m: print(m, file=sys.stderr, flush=True))
-    if a.json:
-        from chainspace.io.results import atomic_write
-
-        with atomic_write(Path(a.json)) as fh:
-            fh.write(json.dumps(runs, indent=1, default=float))
+                              progress=lambda m: print(m, file=sys.stderr, flush=True),
+                              on_run=save if a.json else None)
     print(format_full_range(runs, camera=a.camera, n_frames=frames))
     return 0 if all(r["verdict"].startswith("met") for r in summarise(runs)) else 1
 

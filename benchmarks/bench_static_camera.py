@@ -30,6 +30,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", nargs="*", default=list(STATIC_SETS), choices=list(STATIC_SETS))
     ap.add_argument("--quick", action="store_true", help="one sequence per set, 0 px, straight only")
     ap.add_argument("--sequences", type=int, default=None, help="at most this many sequences per set")
+    ap.add_argument("--frames", type=int, default=None, help="at most this many frames per sequence")
     ap.add_argument("--motions", nargs="*", default=list(MOTIONS))
     ap.add_argument("--noise", type=float, nargs="*", default=[0.0, 2.0])
     ap.add_argument("--cameras", type=int, default=1, help="random cameras per sequence and motion")
@@ -37,7 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     motions, noise = (["straight"], [0.0]) if args.quick else (args.motions, args.noise)
     rows = run_static_benchmark(args.set, motions, noise, args.cameras,
                                 progress=lambda m: print(m, file=sys.stderr, flush=True),
-                                max_sequences=1 if args.quick else args.sequences)
+                                max_sequences=1 if args.quick else args.sequences, max_frames=args.frames)
     print(format_static_table(rows))
     return 0
 

@@ -123,9 +123,11 @@ def _fit(chain: Any, trial: Any, seed: int):
 
 def run_full_range(robots: Sequence[str] = ROBOTS, settings: Sequence[str] = DEFAULT_SETTINGS, *,
                    camera: str = "pinhole", n_frames: int = 60, seeds: int = 1,
-                   progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
+                   progress: Callable[[str], None] | None = None,
+                   on_run: Callable[[list[dict[str, Any]]], None] | None = None) -> list[dict[str, Any]]:
     """One row per run (robot, setting, seed): robot, setting, seed, outcome ("fit", "refused",
-    "crashed"), joints (see :func:`judge_joints`; empty without a fit), error_3d_mm, seconds, note."""
+    "crashed"), joints (see :func:`judge_joints`; empty without a fit), error_3d_mm, seconds, note.
+    ``on_run(runs)`` is called after every run with the runs so far (to save them as they come)."""
     from ..robot.kinematics import RobotKinematics
 
     runs = []
@@ -156,6 +158,8 @@ def run_full_range(robots: Sequence[str] = ROBOTS, settings: Sequence[str] = DEF
                 runs.append(row)
                 if progress:
                     progress(_run_line(row))
+                if on_run:
+                    on_run(runs)
     return runs
 
 

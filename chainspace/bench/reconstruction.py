@@ -325,16 +325,16 @@ def evaluate_static(poses: np.ndarray, chain: Any, motion: str, *, noise_px: flo
 def run_static_benchmark(which: Sequence[str] = ("tune", "held out"), motions: Sequence[str] = MOTIONS,
                          noise_levels: Sequence[float] = (0.0, 2.0), n_cameras: int = 1,
                          progress: Callable[[str], None] | None = None, *,
-                         max_sequences: int | None = None) -> list[dict[str, Any]]:
+                         max_sequences: int | None = None, max_frames: int | None = None) -> list[dict[str, Any]]:
     """One row per (sequence set, motion, noise): every run's errors kept (means and maxima).
 
     The DeepMimic and dog sets are filmed as recorded ("straight" only: they are not walks to turn);
-    a set whose data are missing is reported as a row with no runs and a note. ``max_sequences``: at
-    most that many sequences per set (a quick run)."""
+    a set whose data are missing is reported as a row with no runs and a note. ``max_sequences``,
+    ``max_frames``: at most that many sequences per set, frames per sequence (a quick run)."""
     rows = []
     for w in which:
         chain, seqs = static_set(w)
-        seqs = seqs[:max_sequences] if max_sequences else seqs
+        seqs = [(n, p[:max_frames]) for n, p in (seqs[:max_sequences] if max_sequences else seqs)]
         if not seqs:
             rows.append({"set": w, "motion": "-", "noise": float("nan"), "runs": [], "sequences": "",
                          "note": "data missing (../shared/data or $CHAINSPACE_DATA): skipped"})
