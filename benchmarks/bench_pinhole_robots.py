@@ -28,7 +28,7 @@ import warnings
 
 import numpy as np
 
-from chainspace.bench.robots import ROBOTS, robot_chain, trial_errors
+from chainspace.bench.robots import ROBOT_NAMES, ROBOTS, robot_chain, trial_errors
 
 CONDITIONS = ["K", "focal", "close", "distortion"]
 DIST = (-0.25, 0.08, 0.001, -0.001, 0.0)
@@ -119,7 +119,7 @@ def table(rows, n_frames):
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--robots", nargs="+", choices=list(ROBOTS), default=list(ROBOTS))
+    p.add_argument("--robots", nargs="+", choices=ROBOT_NAMES, default=list(ROBOTS))
     p.add_argument("--conditions", nargs="+", choices=CONDITIONS, default=CONDITIONS)
     p.add_argument("--frames", type=int, default=60)
     p.add_argument("--seeds", type=int, default=1)

@@ -10,13 +10,13 @@ Prints one markdown table (see chainspace.bench.robots).
 import argparse
 import sys
 
-from chainspace.bench.robots import CONDITIONS, ROBOTS, format_robot_table, run_robot_benchmark
+from chainspace.bench.robots import CONDITIONS, ROBOT_NAMES, ROBOTS, format_robot_table, run_robot_benchmark
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--quick", action="store_true", help="60 frames, one seed, static camera at 1 px only")
-    p.add_argument("--robots", nargs="+", choices=list(ROBOTS), default=None)
+    p.add_argument("--robots", nargs="+", choices=ROBOT_NAMES, default=None)
     p.add_argument("--frames", type=int, default=None)
     p.add_argument("--seeds", type=int, default=None)
     p.add_argument("--static-1px", action="store_true", help="only the target condition (static camera, 1 px)")

@@ -38,9 +38,11 @@ FLIPPED_DEG = 90.0
 
 def run_hidden_ends(quick: bool = False, progress: Callable[[str], None] | None = None, *,
                     n_trials: int | None = None, decays: Sequence[float | None] = DECAYS, n_frames: int = 90,
-                    hidden_frames: int = 30, noise_px: float = 2.0) -> list[dict[str, Any]]:
-    """One row per trial, hidden end and decay: trial, end ("first"/"last"), decay, worst_deg, error_mm.
-    ``quick``: 2 trials, else 8 (``n_trials``)."""
+                    hidden_frames: int = 30, noise_px: float = 2.0, robot: str = "milling_arm") -> list[dict[str, Any]]:
+    """One row per trial, hidden end and decay: trial, end ("first"/"last"), decay, worst_deg, error_mm,
+    silent (joints off and reported observable). ``quick``: 2 trials, else 8 (``n_trials``). ``robot``:
+    the milling arm (its wrist and tool points hidden), or an example-robot-data name (the deepest third
+    of its points hidden; the tests use the double pendulum)."""
     from .full_range import judge_joints
     from .robots import trial_errors
     from .robustness import TOOL_MARKER
@@ -49,8 +51,16 @@ def run_hidden_ends(quick: bool = False, progress: Callable[[str], None] | None 
     from ..synthetic.robot import synthesize
     from ..io.urdf import from_urdf
 
-    chain = from_urdf(shipped_path("milling_arm"), extra_frames=TOOL_MARKER)
-    wrist = [chain.joint_index(n) for n in WRIST]
+    if robot == "milling_arm":
+        chain = from_urdf(shipped_path("milling_arm"), extra_frames=TOOL_MARKER)
+        wrist = [chain.joint_index(n) for n in WRIST]
+    else:
+        from ..io.descriptions import example_robot_urdf
+        from .robustness import _depths
+
+        chain = from_urdf(example_robot_urdf(robot))
+        order = np.argsort(_depths(chain), kind="stable")
+        wrist = [int(j) for j in order[-max(1, chain.n_joints // 3):]]
     rows = []
     for k in range(n_trials or (2 if quick else 8)):
         trial = synthesize(chain, n_frames=n_frames, noise_px=noise_px, seed=100 + k, camera="static")

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ROBOTS", "robot_chain", "run_robot_benchmark", "format_robot_table", "trial_errors"]
+__all__ = ["ROBOTS", "ROBOT_NAMES", "robot_chain", "run_robot_benchmark", "format_robot_table", "trial_errors"]
 
 # tracked points per robot: every link origin (the URDF's own points); the Panda without its fingers
 # (a gripper's fingers are rarely trackable), which leaves its flange joint unobservable. The two
@@ -50,15 +50,25 @@ ROBOTS: dict[str, dict[str, Any]] = {
 }
 SHIPPED = ("milling_arm", "milling_arm_on_track")  # robots/ rather than example-robot-data
 
+
+def _names() -> list[str]:
+    from ..io.descriptions import EXAMPLE_ROBOTS
+
+    return list(ROBOTS) + [n for n in EXAMPLE_ROBOTS if n not in ROBOTS]
+
+
+ROBOT_NAMES = _names()  # what --robots accepts: the table's robots, then any example-robot-data name
+
 CONDITIONS = [("static", 0.0), ("static", 1.0), ("static", 3.0), ("per-frame", 1.0)]
 
 
 def robot_chain(name: str):
-    """The chain of benchmark robot ``name`` (a key of :data:`ROBOTS`)."""
+    """The chain of benchmark robot ``name``: a key of :data:`ROBOTS`, else any example-robot-data name
+    (:data:`chainspace.EXAMPLE_ROBOTS`, every link origin tracked; the tests use the double pendulum)."""
     from ..io.descriptions import example_robot_urdf, shipped_path
     from ..io.urdf import from_urdf
 
-    spec = ROBOTS[name]
+    spec = ROBOTS.get(name, {"urdf": name, "links": None})
     path = shipped_path(spec["urdf"]) if spec["urdf"] in SHIPPED else example_robot_urdf(spec["urdf"])
     return from_urdf(path, links=spec["links"], extra_frames=spec.get("extra_frames"))
 
