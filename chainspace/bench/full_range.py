@@ -94,8 +94,9 @@ def judge_joints(fit: Any, trial: Any) -> list[dict[str, Any]]:
         tol = JOINT_MM if prismatic else JOINT_DEG
         if err <= tol:
             verdict, reason = "ok", ""
-        elif status not in JUDGED:
-            verdict, reason = "flagged", status
+        elif status not in JUDGED:  # the fit's own words for it, where its message names the joint
+            why = [c.strip() for c in str(fit.message).split(";") if j["name"] in c]
+            verdict, reason = "flagged", status + (f" ({why[0][:160]})" if why else "")
         else:
             verdict, reason = "silent", f"reported {status}"
         rows.append(dict(name=j["name"], status=status, error=err, unit="mm" if prismatic else "deg",
