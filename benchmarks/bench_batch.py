@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_batch.py                 # 40 recordings x 300 frames, one worker per core
     .venv/bin/python benchmarks/bench_batch.py --recordings 8 --frames 200 --workers 2
+    .venv/bin/python benchmarks/bench_batch.py --quick         # 2 recordings x 30 frames, 1 worker, 1 repeat
 
 Issue 19's target: the batch takes at most 1.2 x (single-recording time x recordings / workers). The
 recordings are human17 chains moving smoothly (chainspace.synthetic.views.swing_motion), seen by a
@@ -77,7 +78,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=300)
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--repeat", type=int, default=3, help="runs of the single-recording command")
+    ap.add_argument("--quick", action="store_true", help="2 recordings x 30 frames, 1 worker, 1 repeat")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.recordings, args.frames, args.workers, args.repeat = 2, 30, 1, 1
     n, workers = args.recordings, args.workers
     say = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
 

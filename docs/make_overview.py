@@ -21,7 +21,7 @@ import chainspace as cs  # noqa: E402
 OUT = Path(__file__).resolve().parent / "_static" / "overview.png"
 
 arm = cs.shipped("milling_arm")
-trial = cs.synthesize(arm, n_frames=60, noise_px=1.0, trajectory="milling", seed=4)  # the demo's camera
+trial = cs.synthesize(arm, n_frames=60, noise_px=1.0, trajectory="milling", seed=4, camera="static")  # the demo's camera
 rec = cs.reconstruct(trial.tracks, arm, confidence=trial.confidence, seed=0)
 fit = cs.fit_joint_angles(rec)
 report = cs.validate(fit, truth_q=trial.q)

@@ -12,7 +12,7 @@ from chainspace.io.descriptions import example_robot_urdf
 
 urdf = example_robot_urdf("ur10")
 chain = cs.from_urdf(urdf, extra_frames={"tool_mark": ("tool0", [0.0, 0.08, 0.05])})
-trial = cs.synthesize(chain, n_frames=150, noise_px=1.0, seed=1)
+trial = cs.synthesize(chain, n_frames=150, noise_px=1.0, seed=1, camera="static")
 
 fit = cs.fit_joint_angles(cs.reconstruct(trial.tracks, chain))
 report = cs.validate(fit, trial.q, thresholds={"joint_rms_deg": 1.0})

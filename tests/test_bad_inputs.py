@@ -791,7 +791,7 @@ def arm():
 def arm_trial(arm):
     from chainspace.synthetic.robot import synthesize
 
-    return synthesize(arm, n_frames=6, noise_px=0.0, seed=0)
+    return synthesize(arm, n_frames=6, noise_px=0.0, seed=0, camera="static")
 
 
 @pytest.mark.parametrize(
@@ -888,7 +888,7 @@ def test_synthesize_takes_numpy_scalars(arm):
 
     t = synthesize(arm, n_frames=np.int64(3), fps=np.float32(25), noise_px=np.float64(0.5), drop=0,
                    image_height_px=600, elevation_deg=np.float32(-20), seed=np.random.default_rng(0),
-                   trajectory=None)
+                   trajectory=None, camera="static")
     assert t.tracks.shape == (3, 9, 2) and t.fps == 25.0 and t.trajectory == "random"
     assert type(t.noise_px) is float
 
@@ -904,7 +904,7 @@ def test_synthesize_needs_a_urdf_chain(human):
 def arm_motion(arm):
     from chainspace.synthetic.robot import synthesize
 
-    trial = synthesize(arm, n_frames=12, noise_px=0.0, seed=1)
+    trial = synthesize(arm, n_frames=12, noise_px=0.0, seed=1, camera="static")
     gone = np.random.default_rng(0).random(trial.positions.shape[:2]) < 0.2
     gone[[0, 5]] = False  # two frames fully seen
     gone[[3, 8], -2:] = True  # spindle and tool tip both hidden: the last joint is not seen there

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 
 import numpy as np
@@ -20,8 +21,8 @@ def _run(*args: str):
 @pytest.fixture(scope="module")
 def walk(tmp_path_factory):
     """Synthetic 2D tracks (CSV) of a bundled CMU walk, seen by one orbiting camera."""
-    datasets = pytest.importorskip("chainspace.io.datasets")
-    synthetic = pytest.importorskip("chainspace.synthetic.views")
+    datasets = importlib.import_module("chainspace.io.datasets")
+    synthetic = importlib.import_module("chainspace.synthetic.views")
     from chainspace.io.tracks import save_tracks
 
     d = tmp_path_factory.mktemp("walk")
@@ -103,7 +104,7 @@ def test_usage_errors_exit_2(tmp_path):
 
 
 def test_bench_dispatches_to_the_suite(monkeypatch):
-    benchmark = pytest.importorskip("chainspace.bench.reconstruction")
+    benchmark = importlib.import_module("chainspace.bench.reconstruction")
     calls = []
 
     def fake_run(*, quick, progress):
@@ -190,8 +191,8 @@ def test_validate_exit_code_follows_the_report(monkeypatch, tmp_path, passed):
 def test_demo_adds_viewer_and_plots(monkeypatch, tmp_path):
     """`chainspace demo` runs chainspace.demo.run_demo, then writes the viewer and plots it returns."""
     pytest.importorskip("pinocchio")
-    descriptions = pytest.importorskip("chainspace.io.descriptions")
-    fit_mod = pytest.importorskip("chainspace.robot.fit")
+    descriptions = importlib.import_module("chainspace.io.descriptions")
+    fit_mod = importlib.import_module("chainspace.robot.fit")
     from types import SimpleNamespace
 
     chain = descriptions.shipped("milling_arm")

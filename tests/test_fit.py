@@ -27,7 +27,7 @@ def _wrapped(d):
 
 def test_exact_points_in_base_frame_recover_angles(arm):
     chain, robot = arm
-    trial = synthesize(chain, n_frames=25, noise_px=0.0, seed=3)
+    trial = synthesize(chain, n_frames=25, noise_px=0.0, seed=3, camera="static")
     fit = fit_joint_angles(trial.positions, chain=chain, transform="none")
     assert fit.observable.all()
     assert np.abs(_wrapped(fit.q - trial.q)).max() < 1e-6
@@ -36,7 +36,7 @@ def test_exact_points_in_base_frame_recover_angles(arm):
 
 def test_similarity_transformed_points_first_joint_relative(arm):
     chain, robot = arm
-    trial = synthesize(chain, n_frames=25, noise_px=0.0, seed=4)
+    trial = synthesize(chain, n_frames=25, noise_px=0.0, seed=4, camera="static")
     R = np.linalg.qr(np.random.default_rng(0).normal(size=(3, 3)))[0]
     R *= np.linalg.det(R)
     X = 1.7 * trial.positions @ R.T + np.array([0.3, -2.0, 1.0])
@@ -59,7 +59,7 @@ def test_similarity_transformed_points_first_joint_relative(arm):
 
 def test_noise_free_tracks_static_camera(arm):
     chain, robot = arm
-    trial = synthesize(chain, n_frames=30, noise_px=0.0, seed=5)
+    trial = synthesize(chain, n_frames=30, noise_px=0.0, seed=5, camera="static")
     rng = np.random.default_rng(1)
     R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
     X = trial.positions @ R.T + rng.normal(0, 0.01, trial.positions.shape)  # a rough reconstruction
@@ -77,7 +77,7 @@ def test_unobservable_joint_is_flagged_and_held(arm):
     chain, robot = arm
     # without the spindle and tool tip nothing tracked is off the A6 axis: A6 cannot be seen
     sub = chain.subset([j for j in chain.joints if j not in ("spindle", "tool_tip")])
-    trial = synthesize(sub, n_frames=20, noise_px=0.0, seed=6)
+    trial = synthesize(sub, n_frames=20, noise_px=0.0, seed=6, camera="static")
     fit = fit_joint_angles(trial.positions, chain=sub, transform="none")
     k = fit.joint_names.index("joint_a6")
     assert not fit.observable[k]
@@ -90,7 +90,7 @@ def test_unobservable_joint_is_flagged_and_held(arm):
 def test_extra_frame_makes_first_joint_observable(arm):
     chain, _ = arm
     marked = from_urdf(ROBOTS / "milling_arm.urdf", extra_frames={"base_mark": ("base_link", [0.5, 0.3, 0.0])})
-    trial = synthesize(marked, n_frames=20, noise_px=0.0, seed=7)
+    trial = synthesize(marked, n_frames=20, noise_px=0.0, seed=7, camera="static")
     R = np.linalg.qr(np.random.default_rng(2).normal(size=(3, 3)))[0]
     R *= np.linalg.det(R)
     fit = fit_joint_angles(2.0 * trial.positions @ R.T, chain=marked)
@@ -100,7 +100,7 @@ def test_extra_frame_makes_first_joint_observable(arm):
 
 def test_limits_are_respected(arm):
     chain, robot = arm
-    trial = synthesize(chain, n_frames=10, noise_px=0.0, seed=8)
+    trial = synthesize(chain, n_frames=10, noise_px=0.0, seed=8, camera="static")
     X = trial.positions.copy()
     X[:, -2:] += np.array([3.0, 0.0, 0.0])  # the tool pulled far out of reach
     with warnings.catch_warnings():
@@ -112,7 +112,7 @@ def test_limits_are_respected(arm):
 
 def test_missing_points_and_confidence(arm):
     chain, robot = arm
-    trial = synthesize(chain, n_frames=20, noise_px=0.0, seed=9)
+    trial = synthesize(chain, n_frames=20, noise_px=0.0, seed=9, camera="static")
     X = trial.positions.copy()
     X[3, 4] = np.nan
     conf = np.ones(X.shape[:2])
@@ -160,7 +160,7 @@ def test_sequence_branch_choice_repairs_frames_on_a_wrong_branch(arm):
     from chainspace.robot.candidates import _viterbi_branches
 
     chain, robot = arm
-    trial = synthesize(chain, n_frames=20, noise_px=0.0, seed=7)
+    trial = synthesize(chain, n_frames=20, noise_px=0.0, seed=7, camera="static")
     s, R = _camera_to_rotation(trial.cameras[0])
     view = _View(np.array([s]), R[None], trial.translations[:1], np.zeros(20, int))
     q_bad = trial.q.copy()
@@ -184,7 +184,7 @@ def test_wrist_turned_half_a_turn_goes_back_to_the_rest_branch(arm):
     from chainspace.robot.candidates import _nearest_rest_branch
 
     chain, robot = arm
-    trial = synthesize(chain, n_frames=60, noise_px=0.0, seed=2)
+    trial = synthesize(chain, n_frames=60, noise_px=0.0, seed=2, camera="static")
     flipped = trial.q.copy()
     flipped[:, 3] += np.pi
     flipped[:, 4] *= -1
@@ -203,7 +203,7 @@ def _benchmark_robot_fit(name, n_frames, seed):
     from chainspace.reconstruction.pipeline import reconstruct
 
     chain = robot_chain(name)
-    trial = synthesize(chain, n_frames=n_frames, noise_px=0.0, seed=seed)
+    trial = synthesize(chain, n_frames=n_frames, noise_px=0.0, seed=seed, camera="static")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         fit = fit_joint_angles(reconstruct(trial.tracks, chain, seed=seed))
@@ -240,7 +240,7 @@ def test_planar_tool_seen_face_on_is_named_with_its_frames(arm):
     marked = from_urdf(ROBOTS / "milling_arm.urdf", extra_frames={"tool_marker": ("spindle", [0.0, 0.08, 0.0])})
     messages = []
     for c in (chain, marked):
-        trial = synthesize(c, n_frames=40, noise_px=0.0, seed=34)
+        trial = synthesize(c, n_frames=40, noise_px=0.0, seed=34, camera="static")
         messages.append(fit_joint_angles(trial.positions, chain=c, tracks=trial.tracks).message)
     assert "points beyond link_5 lie in one plane" in messages[0]
     assert "face-on in frames 0-33:" in messages[0]
@@ -253,7 +253,7 @@ def test_wrist_hidden_for_a_stretch_follows_the_motion_around_it():
     # The acceleration prior carries them through from the frames around (the motion is smooth), rather
     # than holding them at a start value that would drag the frames around off their tracks.
     chain = from_urdf(ROBOTS / "milling_arm.urdf", extra_frames={"tool_marker": ("spindle", [0.0, 0.08, 0.0])})
-    trial = synthesize(chain, n_frames=40, noise_px=1.0, seed=3)
+    trial = synthesize(chain, n_frames=40, noise_px=1.0, seed=3, camera="static")
     tracks = trial.tracks.copy()
     wrist = [chain.joint_index(n) for n in ("link_5", "link_6", "spindle", "tool_tip", "tool_marker")]
     tracks[15:25, wrist] = np.nan
@@ -275,7 +275,7 @@ def test_random_missing_points_do_not_pull_the_wrist_off_its_motion():
     from chainspace.reconstruction.pipeline import reconstruct
 
     chain = from_urdf(ROBOTS / "milling_arm.urdf", extra_frames=TOOL_MARKER)
-    trial = synthesize(chain, n_frames=60, noise_px=2.0, seed=1)
+    trial = synthesize(chain, n_frames=60, noise_px=2.0, seed=1, camera="static")
     hidden = hide_random(trial.tracks, 0.2, np.random.default_rng(1))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -292,7 +292,7 @@ def _limb_sweep_trial(missing):
     from chainspace.reconstruction.pipeline import reconstruct
 
     chain = from_urdf(ROBOTS / "milling_arm.urdf", extra_frames=TOOL_MARKER)
-    trial = synthesize(chain, n_frames=150, noise_px=2.0, seed=_seed("arm", 0))
+    trial = synthesize(chain, n_frames=150, noise_px=2.0, seed=_seed("arm", 0), camera="static")
     hidden = hide_limbs(trial.tracks, missing, limb_groups(chain), trial.fps,
                         np.random.default_rng(_seed("arm", 0, "limb", missing)))
     with warnings.catch_warnings():
@@ -355,7 +355,7 @@ def test_the_prior_brings_a_joint_to_rest_past_its_last_sighting(arm):
 def test_with_a_speed_decay_a_wrist_hidden_in_the_last_second_comes_to_rest(arm):
     # The fit's own path past the last sighting: the wrist's speed decays instead of carrying on.
     chain = from_urdf(ROBOTS / "milling_arm.urdf", extra_frames={"tool_marker": ("spindle", [0.0, 0.08, 0.0])})
-    trial = synthesize(chain, n_frames=60, noise_px=1.0, seed=3)
+    trial = synthesize(chain, n_frames=60, noise_px=1.0, seed=3, camera="static")
     tracks = trial.tracks.copy()
     tracks[35:, [chain.joint_index(n) for n in ("link_5", "link_6", "spindle", "tool_tip", "tool_marker")]] = np.nan
     fit = fit_joint_angles(trial.positions, chain=chain, tracks=tracks, speed_decay_s=0.5)
@@ -387,7 +387,7 @@ def test_a_wrist_hidden_in_the_last_second_is_put_on_the_branch_nearest_rest():
     from chainspace.bench.robustness import TOOL_MARKER
 
     chain = from_urdf(ROBOTS / "milling_arm.urdf", extra_frames=TOOL_MARKER)
-    trial = synthesize(chain, n_frames=90, noise_px=2.0, seed=100)
+    trial = synthesize(chain, n_frames=90, noise_px=2.0, seed=100, camera="static")
     tracks = trial.tracks.copy()
     tracks[60:, [chain.joint_index(n) for n in ("link_5", "link_6", "spindle", "tool_tip", "tool_marker")]] = np.nan
     with warnings.catch_warnings():

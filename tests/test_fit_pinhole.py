@@ -64,10 +64,12 @@ def test_synthesize_pinhole_records_the_camera(arm):
     assert np.abs(px.reshape(tr.tracks.shape) - tr.tracks).max() < 1e-6
 
 
-def test_weak_default_unchanged(arm):
-    a = synthesize(arm, n_frames=5, seed=3)
+def test_weak_is_static_and_default_is_pinhole(arm):
+    a = synthesize(arm, n_frames=5, seed=3, camera="static")
     b = synthesize(arm, n_frames=5, seed=3, camera="weak")
+    c = synthesize(arm, n_frames=5, seed=3)
     assert a.intrinsics is None and np.array_equal(a.tracks, b.tracks)
+    assert c.intrinsics is not None and np.array_equal(a.q, c.q)  # the camera drawn leaves the motion alone
 
 
 def test_known_intrinsics_noise_free_exact(arm_fit, arm_trial):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 from types import SimpleNamespace
 
@@ -117,9 +118,9 @@ def test_save_results_rejects_unknown_objects(tmp_path):
 
 
 def test_real_reconstruction_round_trip(tmp_path):
-    rec_mod = pytest.importorskip("chainspace.reconstruction.pipeline")
-    datasets = pytest.importorskip("chainspace.io.datasets")
-    synthetic = pytest.importorskip("chainspace.synthetic.views")
+    rec_mod = importlib.import_module("chainspace.reconstruction.pipeline")
+    datasets = importlib.import_module("chainspace.io.datasets")
+    synthetic = importlib.import_module("chainspace.synthetic.views")
     chain, poses = datasets.human17(), datasets.cmu_walk(35, 1)[:40]
     tracks = synthetic.observe(poses, synthetic.orbit_cameras(len(poses), seed=1, scale=300.0), seed=2)
     rec = rec_mod.reconstruct(tracks, chain, truth=poses, seed=0)

@@ -40,7 +40,7 @@ MIMIC_URDF = """<?xml version="1.0"?>
 
 def _end_to_end(chain, n_frames, seed, tmp_path):
     """synthesize -> reconstruct -> fit_joint_angles -> validate -> save_results, noise-free."""
-    trial = synthesize(chain, n_frames=n_frames, noise_px=0.0, seed=seed)
+    trial = synthesize(chain, n_frames=n_frames, noise_px=0.0, seed=seed, camera="static")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         rec = reconstruct(trial.tracks, chain, seed=seed)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import base64
 import re
 from types import SimpleNamespace
@@ -109,8 +110,8 @@ def test_reconstruction_is_turned_upright(tmp_path):
 
 def test_robot_fit_drives_the_urdf_geometry(tmp_path):
     pytest.importorskip("pinocchio")
-    descriptions = pytest.importorskip("chainspace.io.descriptions")
-    fit_mod = pytest.importorskip("chainspace.robot.fit")
+    descriptions = importlib.import_module("chainspace.io.descriptions")
+    fit_mod = importlib.import_module("chainspace.robot.fit")
     chain = descriptions.shipped("milling_arm")
     robot = fit_mod.RobotKinematics(chain.metadata["urdf_path"], chain)
     F = 30

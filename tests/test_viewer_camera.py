@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import base64
 import re
 from types import SimpleNamespace
@@ -152,8 +153,8 @@ def test_html_without_a_pose_uses_the_fitted_weak_camera(tmp_path):
 
 def test_robot_view_draws_the_frustum_in_the_base_frame(tmp_path):
     pytest.importorskip("pinocchio")
-    descriptions = pytest.importorskip("chainspace.io.descriptions")
-    fit_mod = pytest.importorskip("chainspace.robot.fit")
+    descriptions = importlib.import_module("chainspace.io.descriptions")
+    fit_mod = importlib.import_module("chainspace.robot.fit")
     chain = descriptions.shipped("milling_arm")
     robot = fit_mod.RobotKinematics(chain.metadata["urdf_path"], chain)
     F = 5

@@ -33,7 +33,8 @@ from ..metrics import error_3d
 from ..synthetic.views import observe, orbit_cameras, scale_for_span
 
 __all__ = ["Row", "sequence_groups", "evaluate_sequence", "run_benchmark", "format_table", "COLUMNS",
-           "IMAGE_HEIGHT_PX", "SPAN_PX", "run_speed", "format_speed"]
+           "IMAGE_HEIGHT_PX", "SPAN_PX", "run_speed", "format_speed", "STATIC_SETS", "static_set",
+           "run_static_benchmark", "format_static_table"]
 
 IMAGE_HEIGHT_PX = 900
 SPAN_PX = 0.8 * IMAGE_HEIGHT_PX
@@ -275,18 +276,57 @@ STATIC_COLUMNS = ("ortho KCS", "ortho default", "pinhole KCS", "pinhole default"
 MOTIONS = ("straight", "turning 360", "towards/away")
 
 
+STATIC_SETS = ("tune", "held out", "DeepMimic", "dog")
+DOG_FRAMES, DOG_STEP = 300, 2  # 10 s of each dog recording at 30 fps (the files are 60 fps)
+
+
 def static_sequences(which: str) -> list[tuple[str, np.ndarray]]:
-    """``[(name, poses)]``: "tune" = CMU 35_01, 35_02 (the walks the defaults were looked at on);
-    "held out" = walks 02_01, 07_01, 16_15 and the first subject-09 run (never tuned on)."""
+    """``[(name, poses)]`` of one set (:func:`static_set` also gives its chain)."""
+    return static_set(which)[1]
+
+
+def static_set(which: str) -> tuple[Any, list[tuple[str, np.ndarray]]]:
+    """``(chain, [(name, poses)])``, Z-up metres. "tune" = CMU 35_01, 35_02 (the walks the defaults were
+    looked at on); "held out" = walks 02_01, 07_01, 16_15 and the first subject-09 run (never tuned on);
+    "DeepMimic" = the walk, run, jump and cartwheel clips (their 16-point humanoid, started from the
+    human17 mean pose); "dog" = the dog motion capture in ``dog_mocap`` (BVH, cm; its own 26-point chain,
+    rest pose from the file's offsets; first 10 s of each recording at 30 fps; non-commercial data:
+    benchmark only). Empty when the data are missing."""
     from ..io import datasets
 
+    human = datasets.human17()
     if which == "tune":
-        return [(f"35_{t:02d}", datasets.cmu_walk(35, t)) for t in (1, 2)]
-    out = [(f"{s:02d}_{t:02d}", datasets.cmu_walk(s, t)) for s, t in ((2, 1), (7, 1), (16, 15))]
-    runs = datasets.cmu09_runs()
-    if runs:
-        out.append(("09 run 1", runs[0]))
-    return out
+        return human, [(f"35_{t:02d}", datasets.cmu_walk(35, t)) for t in (1, 2)]
+    if which == "held out":
+        out = [(f"{s:02d}_{t:02d}", datasets.cmu_walk(s, t)) for s, t in ((2, 1), (7, 1), (16, 15))]
+        runs = datasets.cmu09_runs()
+        if runs:
+            out.append(("09 run 1", runs[0]))
+        return human, out
+    if which == "DeepMimic":
+        out, chain = [], None
+        for clip in ("walk", "run", "jump", "cartwheel"):
+            try:
+                chain, poses = datasets.deepmimic_clip(clip)
+            except ChainspaceError:
+                continue
+            out.append((clip, poses))
+        if chain is None:
+            return human, []
+        return chain.with_rest_pose(human.subset(chain.joints).rest_pose), out
+    if which == "dog":
+        from ..io.bvh import load_bvh
+
+        root = datasets.shared_data_dir()
+        files = sorted((root / "dog_mocap").glob("*.bvh")) if root is not None else []
+        out, chain = [], None
+        for f in files:
+            chain, poses, _ = load_bvh(f, unit="cm", name="dog")
+            out.append((f.stem, datasets.to_z_up(poses[: DOG_FRAMES * DOG_STEP: DOG_STEP])))
+        if chain is None:
+            return human, []
+        return chain.with_rest_pose(datasets.to_z_up(chain.rest_pose)), out
+    raise ChainspaceError(f"unknown static set {which!r}; choose from {', '.join(STATIC_SETS)}")
 
 
 def evaluate_static(poses: np.ndarray, chain: Any, motion: str, *, noise_px: float, seed: int) -> dict[str, float]:
@@ -320,15 +360,24 @@ def evaluate_static(poses: np.ndarray, chain: Any, motion: str, *, noise_px: flo
 
 def run_static_benchmark(which: Sequence[str] = ("tune", "held out"), motions: Sequence[str] = MOTIONS,
                          noise_levels: Sequence[float] = (0.0, 2.0), n_cameras: int = 1,
-                         progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
-    """One row per (sequence set, motion, noise): every run's errors kept (means and maxima)."""
-    from ..io.datasets import human17
+                         progress: Callable[[str], None] | None = None, *,
+                         max_sequences: int | None = None, max_frames: int | None = None) -> list[dict[str, Any]]:
+    """One row per (sequence set, motion, noise): every run's errors kept (means and maxima).
 
-    chain = human17()
+    The DeepMimic and dog sets are filmed as recorded ("straight" only: they are not walks to turn);
+    a set whose data are missing is reported as a row with no runs and a note. ``max_sequences``,
+    ``max_frames``: at most that many sequences per set, frames per sequence (a quick run)."""
     rows = []
     for w in which:
-        seqs = static_sequences(w)
-        for motion in motions:
+        chain, seqs = static_set(w)
+        seqs = [(n, p[:max_frames]) for n, p in (seqs[:max_sequences] if max_sequences else seqs)]
+        if not seqs:
+            rows.append({"set": w, "motion": "-", "noise": float("nan"), "runs": [], "sequences": "",
+                         "note": "data missing (../shared/data or $CHAINSPACE_DATA): skipped"})
+            if progress:
+                progress(f"{w}: data missing, skipped")
+            continue
+        for motion in (motions if w in ("tune", "held out") else [m for m in motions if m == "straight"]):
             for noise in noise_levels:
                 runs = []
                 for name, poses in seqs:
@@ -338,8 +387,8 @@ def run_static_benchmark(which: Sequence[str] = ("tune", "held out"), motions: S
                         if progress:
                             progress(f"{w} {motion} {noise:g} px {name} cam {cam}: " + ", ".join(
                                 f"{k} {v * 1000:.1f}" for k, v in runs[-1].items() if k in STATIC_COLUMNS))
-                rows.append({"set": w, "motion": motion, "noise": noise, "runs": runs,
-                             "sequences": ", ".join(n for n, _ in seqs)})
+                rows.append({"set": w, "motion": motion if w in ("tune", "held out") else "as recorded",
+                             "noise": noise, "runs": runs, "sequences": ", ".join(n for n, _ in seqs)})
     return rows
 
 
@@ -352,6 +401,9 @@ def format_static_table(rows: Sequence[dict[str, Any]]) -> str:
     lines = [head, "|---|---|---:|---:|" + "---:|" * (len(STATIC_COLUMNS) + 3)]
     for r in rows:
         runs = r["runs"]
+        if not runs:
+            lines.append(f"| {r['set']} | {r.get('note', 'no runs')} | | 0 |" + " |" * (len(STATIC_COLUMNS) + 3))
+            continue
         cells = []
         for c in STATIC_COLUMNS:
             v = np.array([x[c] for x in runs]) * 1000

@@ -2,8 +2,9 @@
 
 For the milling arm (robots/), the UR10, Panda and xArm7 of example-robot-data, the Kinova Gen2
 (continuous joints) and the milling arm on its floor track (a prismatic axis, robots/): 300-frame random
-smooth trajectories inside the joint limits, a static camera at a random view, the robot spanning
-about 800 px, 0, 1 and 3 px noise, and per-frame cameras at 1 px. Each trial goes the user's way:
+smooth trajectories inside the joint limits, a static weak-perspective camera (``synthesize(camera=
+"static")``: these rows measure the weak-perspective fit; bench_pinhole_robots.py and bench_full_range.py
+film with pinhole cameras) at a random view, the robot spanning about 800 px, 0, 1 and 3 px noise, and per-frame cameras at 1 px. Each trial goes the user's way:
 :func:`chainspace.reconstruct` on the tracks alone, then :func:`chainspace.fit_joint_angles` with the
 URDF. Reported: the worst per-joint RMS error (degrees) over the observable joints (joints seen only
 relative to the first frame included, after removing their offset), the 3D error of the fitted robot
@@ -24,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ROBOTS", "robot_chain", "run_robot_benchmark", "format_robot_table", "trial_errors"]
+__all__ = ["ROBOTS", "ROBOT_NAMES", "robot_chain", "run_robot_benchmark", "format_robot_table", "trial_errors"]
 
 # tracked points per robot: every link origin (the URDF's own points); the Panda without its fingers
 # (a gripper's fingers are rarely trackable), which leaves its flange joint unobservable. The two
@@ -49,15 +50,25 @@ ROBOTS: dict[str, dict[str, Any]] = {
 }
 SHIPPED = ("milling_arm", "milling_arm_on_track")  # robots/ rather than example-robot-data
 
+
+def _names() -> list[str]:
+    from ..io.descriptions import EXAMPLE_ROBOTS
+
+    return list(ROBOTS) + [n for n in EXAMPLE_ROBOTS if n not in ROBOTS]
+
+
+ROBOT_NAMES = _names()  # what --robots accepts: the table's robots, then any example-robot-data name
+
 CONDITIONS = [("static", 0.0), ("static", 1.0), ("static", 3.0), ("per-frame", 1.0)]
 
 
 def robot_chain(name: str):
-    """The chain of benchmark robot ``name`` (a key of :data:`ROBOTS`)."""
+    """The chain of benchmark robot ``name``: a key of :data:`ROBOTS`, else any example-robot-data name
+    (:data:`chainspace.EXAMPLE_ROBOTS`, every link origin tracked; the tests use the double pendulum)."""
     from ..io.descriptions import example_robot_urdf, shipped_path
     from ..io.urdf import from_urdf
 
-    spec = ROBOTS[name]
+    spec = ROBOTS.get(name, {"urdf": name, "links": None})
     path = shipped_path(spec["urdf"]) if spec["urdf"] in SHIPPED else example_robot_urdf(spec["urdf"])
     return from_urdf(path, links=spec["links"], extra_frames=spec.get("extra_frames"))
 
@@ -86,7 +97,7 @@ def run_robot_benchmark(quick: bool = False, progress: Callable[[str], None] | N
                         conditions: list[tuple[str, float]] | None = None) -> list[dict[str, Any]]:
     """Run the benchmark; one row per robot and condition (camera, noise px), averaged over seeds.
 
-    ``quick``: 100 frames, one seed. Rows hold: robot, camera, noise_px, joint_rms_deg (worst joint,
+    ``quick``: 60 frames, one seed, the target condition only (static camera, 1 px). Rows hold: robot, camera, noise_px, joint_rms_deg (worst joint,
     mean over seeds), joint_rms_deg_max (worst seed), error_3d_mm, error_3d_pct, fps, reach_mm,
     n_frames, seeds, unobservable (joint names).
     """
@@ -95,16 +106,17 @@ def run_robot_benchmark(quick: bool = False, progress: Callable[[str], None] | N
     from ..reconstruction.pipeline import reconstruct
     from ..synthetic.robot import synthesize
 
-    n_frames = n_frames or (100 if quick else 300)
+    n_frames = n_frames or (60 if quick else 300)
     seeds = seeds or (1 if quick else 3)
+    conditions = conditions or ([("static", 1.0)] if quick else CONDITIONS)
     rows = []
     for name in robots or list(ROBOTS):
         chain = robot_chain(name)
         reach = RobotKinematics(chain.metadata["urdf_path"], chain).reach()
-        for camera, noise in conditions or CONDITIONS:
+        for camera, noise in conditions:
             errs, e3, secs, unobs, mm = [], [], 0.0, set(), []
             for seed in range(seeds):
-                trial = synthesize(chain, n_frames=n_frames, noise_px=noise, seed=seed)
+                trial = synthesize(chain, n_frames=n_frames, noise_px=noise, seed=seed, camera="static")
                 t0 = time.perf_counter()
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")

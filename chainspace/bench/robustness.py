@@ -64,6 +64,8 @@ MISSING_LEVELS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)  # fraction of points
 IMAGE_HEIGHT_PX = 900.0
 SPAN_PX = 0.8 * IMAGE_HEIGHT_PX
 CLIFF_SLOPE, CLIFF_MM, CLIFF_FLOOR = 3.0, 5.0, 0.2  # steep: 3 x the mean slope (>= 20 % rise), > 5 mm
+CLIFF_DEG = 2.0  # the joint-angle sweeps: a step is material when the worst joint rises by more than this
+FLIP_DEG = 90.0  # a joint this far off, reported observable: a silent flip (its points may all be in place)
 CLIFF_JUMP = 1.0  # jump: a rise of more than 1.0 x max(error before the step, full-data error)
 EXACT_MM = 1e-6  # an error below this is an exact result: no ratio to it, no jump from it
 CLIFF_RULE = (f"Cliff: a step between neighbouring levels where the error rises by more than {CLIFF_MM:g} mm and "
@@ -225,6 +227,8 @@ def _sweep_walk(quick: bool, n_cameras: int, base_noise: float, say: Callable[[s
             except Exception as exc:  # noqa: BLE001 - a failed run is counted and shown, not fatal
                 failed.append(f"{type(exc).__name__}: {exc}")
                 say(f"walk35 {key} camera {cam} {sweep} {missing:.0%}: FAILED {failed[-1]}")
+                errs.append(np.inf)  # counted: a failed run makes the mean and the maximum infinite
+                hid.append(hidden.mean())
                 continue
             secs.append(time.perf_counter() - t0)
             errs.append(error_3d(rec.poses, X))
@@ -234,7 +238,7 @@ def _sweep_walk(quick: bool, n_cameras: int, base_noise: float, say: Callable[[s
         rows.append(dict(dataset="walk35", sweep=sweep, noise_px=noise, missing=float(missing),
                          hidden=float(np.mean(hid)), error_mm=1000 * float(np.mean(errs)),
                          error_max_mm=1000 * float(np.max(errs)), runs=len(errs), failed=len(failed),
-                         seconds=float(np.mean(secs))))
+                         seconds=float(np.mean(secs)) if secs else float("nan")))
         say(f"walk35 {sweep} noise {noise:g} px missing {missing:.0%}: {rows[-1]['error_mm']:.1f} mm")
     return rows
 
@@ -242,6 +246,7 @@ def _sweep_walk(quick: bool, n_cameras: int, base_noise: float, say: Callable[[s
 def _sweep_arm(quick: bool, n_seeds: int, n_frames: int, base_noise: float,
                say: Callable[[str], None], trajectory: str = "random", sweeps: Sequence[str] = SWEEPS,
                tool_marker: bool = True) -> list[dict]:
+    from .full_range import judge_joints
     from .robots import trial_errors
     from ..io.descriptions import shipped_path
     from ..robot.fit import fit_joint_angles
@@ -253,10 +258,10 @@ def _sweep_arm(quick: bool, n_seeds: int, n_frames: int, base_noise: float,
     groups = limb_groups(chain)
     rows = []
     for sweep, noise, missing in _plan(quick, base_noise, sweeps):
-        e_rec, e_fit, e_q, hid, secs, failed = [], [], [], [], [], []
+        e_rec, e_fit, e_q, hid, secs, failed, silent, flips = [], [], [], [], [], [], 0, 0
         for s in range(n_seeds):
             trial = synthesize(chain, n_frames=n_frames, noise_px=noise, seed=_seed("arm", s),
-                               trajectory=trajectory)
+                               trajectory=trajectory, camera="static")
             rng = np.random.default_rng(_seed("arm", s, sweep, missing))
             hidden = (hide_random(trial.tracks, missing, rng) if sweep == "random"
                       else hide_limbs(trial.tracks, missing, groups, trial.fps, rng) if sweep == "limb"
@@ -274,6 +279,9 @@ def _sweep_arm(quick: bool, n_seeds: int, n_frames: int, base_noise: float,
             except Exception as exc:  # noqa: BLE001 - a failed run is counted and shown, not fatal
                 failed.append(f"{type(exc).__name__}: {exc}")
                 say(f"milling arm {sweep} {missing:.0%} seed {s}: FAILED {failed[-1]}")
+                for v in (e_rec, e_fit, e_q):  # counted: a failed run makes the means and maxima infinite
+                    v.append(np.inf)
+                hid.append(hidden.mean())
                 continue
             secs.append(time.perf_counter() - t0)
             e_rec.append(error_3d(rec.poses, trial.positions, scale=True))
@@ -281,13 +289,16 @@ def _sweep_arm(quick: bool, n_seeds: int, n_frames: int, base_noise: float,
             e_fit.append(fit_m)
             e_q.append(joint_deg)
             hid.append(hidden.mean())
-        if not e_rec:
-            continue
+            # joints judged as well as points: a wrist flipped half a turn moves no tracked point
+            judged = [j for j in judge_joints(fit, trial) if j["unit"] == "deg"]
+            silent += any(j["verdict"] == "silent" for j in judged)
+            flips += any(j["verdict"] == "silent" and j["error"] > FLIP_DEG for j in judged)
         rows.append(dict(dataset="milling arm", sweep=sweep, noise_px=noise, missing=float(missing),
                          hidden=float(np.mean(hid)), error_mm=1000 * float(np.mean(e_fit)),
                          error_max_mm=1000 * float(np.max(e_fit)), rec_error_mm=1000 * float(np.mean(e_rec)),
-                         joint_rms_deg=float(np.nanmean(e_q)), runs=len(e_rec), failed=len(failed),
-                         seconds=float(np.mean(secs))))
+                         joint_rms_deg=float(np.mean(e_q)), joint_rms_max_deg=float(np.max(e_q)),
+                         silent_flips=flips, silent_runs=silent, runs=len(e_rec), failed=len(failed),
+                         seconds=float(np.mean(secs)) if secs else float("nan")))
         say(f"milling arm {sweep} noise {noise:g} px missing {missing:.0%}: fitted robot {rows[-1]['error_mm']:.1f} mm, "
             f"{rows[-1]['joint_rms_deg']:.2f} deg; reconstruction {rows[-1]['rec_error_mm']:.1f} mm")
     return rows
@@ -306,9 +317,11 @@ def run_robustness(quick: bool = False, progress: Callable[[str], None] | None =
     random motion of every joint) or "milling" (the demo's contour path); ``sweeps`` a subset of
     ("noise", "random", "limb"); ``tool_marker`` tracks the milling arm with :data:`TOOL_MARKER`. Row keys: dataset, sweep ("noise",
     "random", "limb"), noise_px, missing (target fraction), hidden (fraction hidden), error_mm (3D
-    error: walks, of the reconstruction; arm, of the fitted robot), error_max_mm (worst run), runs (that
-    succeeded), failed (runs that raised: shown in the table, left out of the means), seconds (per
-    reconstruction, arm: with the fit), and for the arm rec_error_mm and joint_rms_deg.
+    error: walks, of the reconstruction; arm, of the fitted robot), error_max_mm (worst run), runs (every
+    run), failed (runs that raised: also in the means and maxima, as infinite), seconds (per successful
+    reconstruction, arm: with the fit), and for the arm rec_error_mm, joint_rms_deg (worst joint, mean over
+    runs), joint_rms_max_deg (worst run), silent_flips and silent_runs (runs with a joint more than
+    :data:`FLIP_DEG` / 2 degrees off that the fit reported observable).
     """
     say = progress or (lambda m: None)
     rows: list[dict] = []
@@ -334,7 +347,7 @@ def _add_ratios(rows: list[dict]) -> None:
 
 
 # ------------------------------------------------------------------------------------------ targets
-def find_cliffs(x: Sequence[float], errors: Sequence[float]) -> dict[str, Any]:
+def find_cliffs(x: Sequence[float], errors: Sequence[float], material: float = CLIFF_MM) -> dict[str, Any]:
     """Judge one sweep by the cliff rule (module docstring, :data:`CLIFF_RULE`).
 
     ``x``: the swept levels (px of noise or fraction hidden), ``errors``: the errors there (mm), the
@@ -343,6 +356,8 @@ def find_cliffs(x: Sequence[float], errors: Sequence[float]) -> dict[str, Any]:
     the sweep's mean slope), ``jump`` (its rise over max(error before it, full-data error)), ``steep``
     and ``jumped`` (bool arrays: which rule the step breaks), ``cliff`` (either); and ``steepest`` and
     ``largest_jump``, the indices of the steps with the largest ``slope_ratio`` and ``jump``.
+    ``material``: the smallest rise judged (:data:`CLIFF_MM` mm; :data:`CLIFF_DEG` for joint angles).
+    A failed run makes its level's error infinite: a cliff.
     """
     x = np.asarray(x, float)
     e = np.asarray(errors, float)
@@ -352,14 +367,18 @@ def find_cliffs(x: Sequence[float], errors: Sequence[float]) -> dict[str, Any]:
     x, e = x[order], e[order]
     span = max(x[-1] - x[0], 1e-12)
     # the sweep's mean slope, at least a 20 % rise over the sweep (a flat curve has no cliff scale)
-    mean_slope = max((e[-1] - e[0]) / span, CLIFF_FLOOR * abs(e[0]) / span, 1e-12)
-    rise = np.diff(e)
-    slope_ratio = rise / np.maximum(np.diff(x), 1e-12) / mean_slope
+    fin = e[np.isfinite(e)]
+    mean_slope = max((fin[-1] - fin[0]) / span if len(fin) else 0.0, CLIFF_FLOOR * abs(e[0]) / span, 1e-12)
+    with np.errstate(invalid="ignore"):
+        rise = np.diff(e)
+        rise = np.where(np.isnan(rise), np.inf, rise)  # inf after inf: still failed
+        slope_ratio = rise / np.maximum(np.diff(x), 1e-12) / mean_slope
     before = np.maximum(e[:-1], e[0])
     # from an exact result (noise-free tracks, error ~1e-12 mm) any noise more than doubles the error:
     # such a step is judged by its steepness alone
-    jump = np.where(before > EXACT_MM, rise / np.maximum(before, EXACT_MM), 0.0)
-    material = rise > CLIFF_MM
+    with np.errstate(invalid="ignore"):
+        jump = np.where(before > EXACT_MM, rise / np.maximum(before, EXACT_MM), 0.0)
+    material = rise > material
     steep = material & (slope_ratio > CLIFF_SLOPE)
     jumped = material & (jump > CLIFF_JUMP)
     return dict(x=x, error=e, rise=rise, slope_ratio=slope_ratio, jump=jump, steep=steep, jumped=jumped,
@@ -368,32 +387,52 @@ def find_cliffs(x: Sequence[float], errors: Sequence[float]) -> dict[str, Any]:
 
 def check_targets(rows: Sequence[dict]) -> list[tuple[str, bool, str]]:
     """[(target, passed, detail)]: 20 % random missing <= 1.25 x full data; no cliff in any sweep
-    (:func:`find_cliffs`)."""
+    (:func:`find_cliffs`); for robots the same two on the worst joint's RMS error (degrees; every run's,
+    failed runs as infinite) and no silent flip (a run with a joint more than :data:`FLIP_DEG` off that
+    the fit reported observable)."""
     out = []
     for ds in dict.fromkeys(r["dataset"] for r in rows):
-        at20 = [r for r in rows if r["dataset"] == ds and r["sweep"] == "random" and abs(r["missing"] - 0.2) < 1e-9]
-        if at20:
-            ratio = at20[0]["ratio"]
-            out.append((f"{ds}: 20 % random missing <= 1.25 x full data", bool(ratio <= 1.25), f"{ratio:.2f} x"))
-        for sweep in ("noise", "random", "limb"):
-            seq = [r for r in rows if r["dataset"] == ds and r["sweep"] == sweep]
-            if len(seq) < 2:
-                continue
-            c = find_cliffs([r["noise_px"] if sweep == "noise" else r["hidden"] for r in seq],
-                            [r["error_mm"] for r in seq])
-            x = c["x"]
+        sub = [r for r in rows if r["dataset"] == ds]
+        measures = [("error_mm", "mm", CLIFF_MM, "")]
+        if "joint_rms_deg" in sub[0]:
+            measures.append(("joint_rms_deg", "deg", CLIFF_DEG, " (worst joint RMS)"))
+        for key, unit, material, what in measures:
+            out += _targets_of(ds, sub, key, unit, material, what)
+        if "silent_flips" in sub[0]:
+            bad = [f"{r['sweep']} {r['noise_px']:g} px {r['missing']:.0%}: {r['silent_flips']} of {r['runs']}"
+                   for r in sub if r["silent_flips"]]
+            out.append((f"{ds}: no silent flip (a joint > {FLIP_DEG:g} deg off, reported observable)", not bad,
+                        "; ".join(bad) or f"none in {sum(r['runs'] for r in sub)} runs"))
+    return out
 
-            def step(k: int) -> str:
-                span = f"{x[k]:g} -> {x[k + 1]:g} px" if sweep == "noise" else f"{x[k]:.0%} -> {x[k + 1]:.0%}"
-                return (f"{span}: +{c['rise'][k]:.1f} mm, {c['slope_ratio'][k]:.1f} x the sweep's mean slope, "
-                        f"rise {c['jump'][k]:.2f} x the error before it")
 
-            if c["cliff"].any():
-                detail = "; ".join(f"cliff {step(k)}" for k in np.flatnonzero(c["cliff"]))
-            else:
-                k, j = c["steepest"], c["largest_jump"]
-                detail = f"steepest step {step(k)}" + ("" if j == k else f"; largest jump {step(j)}")
-            out.append((f"{ds}: no cliff in the {sweep} sweep", not c["cliff"].any(), detail))
+def _targets_of(ds: str, sub: Sequence[dict], key: str, unit: str, material: float,
+                what: str) -> list[tuple[str, bool, str]]:
+    out = []
+    at20 = [r for r in sub if r["sweep"] == "random" and abs(r["missing"] - 0.2) < 1e-9]
+    base = [r for r in sub if r["sweep"] == "random" and r["missing"] == 0.0]
+    if at20 and base:
+        ratio = at20[0][key] / base[0][key] if base[0][key] > (EXACT_MM if unit == "mm" else 1e-9) else float("nan")
+        out.append((f"{ds}: 20 % random missing <= 1.25 x full data{what}", bool(ratio <= 1.25), f"{ratio:.2f} x"))
+    for sweep in ("noise", "random", "limb"):
+        seq = [r for r in sub if r["sweep"] == sweep]
+        if len(seq) < 2:
+            continue
+        c = find_cliffs([r["noise_px"] if sweep == "noise" else r["hidden"] for r in seq], [r[key] for r in seq],
+                        material)
+        x = c["x"]
+
+        def step(k: int) -> str:
+            span = f"{x[k]:g} -> {x[k + 1]:g} px" if sweep == "noise" else f"{x[k]:.0%} -> {x[k + 1]:.0%}"
+            return (f"{span}: +{c['rise'][k]:.1f} {unit}, {c['slope_ratio'][k]:.1f} x the sweep's mean slope, "
+                    f"rise {c['jump'][k]:.2f} x the error before it")
+
+        if c["cliff"].any():
+            detail = "; ".join(f"cliff {step(k)}" for k in np.flatnonzero(c["cliff"]))
+        else:
+            k, j = c["steepest"], c["largest_jump"]
+            detail = f"steepest step {step(k)}" + ("" if j == k else f"; largest jump {step(j)}")
+        out.append((f"{ds}: no cliff in the {sweep} sweep{what}", not c["cliff"].any(), detail))
     return out
 
 
@@ -407,8 +446,8 @@ def format_robustness(rows: Sequence[dict]) -> str:
         head = "| sweep | noise px | missing target | hidden | 3D error mm | max mm | x full data |"
         sep = "|---|---:|---:|---:|---:|---:|---:|"
         if arm:
-            head += " reconstruction mm | worst joint RMS deg |"
-            sep += "---:|---:|"
+            head += " reconstruction mm | worst joint RMS deg | (max) | silent flips |"
+            sep += "---:|---:|---:|---:|"
         head += " runs | s per run |"
         sep += "---:|---:|"
         lines += [f"### {ds}", "", head, sep]
@@ -416,11 +455,15 @@ def format_robustness(rows: Sequence[dict]) -> str:
             cells = [r["sweep"], f"{r['noise_px']:g}", f"{r['missing']:.0%}", f"{r['hidden']:.1%}",
                      f"{r['error_mm']:.1f}", f"{r['error_max_mm']:.1f}", "-" if np.isnan(r["ratio"]) else f"{r['ratio']:.2f}"]
             if arm:
-                cells += [f"{r['rec_error_mm']:.1f}", f"{r['joint_rms_deg']:.2f}"]
+                cells += [f"{r['rec_error_mm']:.1f}", f"{r['joint_rms_deg']:.2f}",
+                          f"{r.get('joint_rms_max_deg', float('nan')):.2f}", str(r.get("silent_flips", "-"))]
             runs = str(r["runs"]) + (f" ({r['failed']} failed)" if r.get("failed") else "")
             cells += [runs, f"{r['seconds']:.2f}"]
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
+    lines.append("Every run counts in every mean and maximum: a run that raised makes them infinite (and is "
+                 "also counted in 'runs' as failed). Silent flips: runs where a joint reported observable was "
+                 f"more than {FLIP_DEG:g} degrees off (a flipped wrist moves no tracked point).")
     lines.append("3D error: mean joint distance, mean over frames and runs; walks: per-frame rigid Procrustes "
                  "alignment of the reconstruction; milling arm: the fitted robot, one rigid alignment per run "
                  "('reconstruction': the monocular stage before the fit, per-frame similarity alignment). "

@@ -1,8 +1,9 @@
 """Synthetic robot footage: a known joint trajectory filmed by a known camera, as 2D tracks.
 
 :func:`synthesize` is how a user checks a camera set-up before filming: it moves the robot of a URDF
-along a smooth trajectory inside its joint limits, films it with a weak-perspective camera (static, as
-from a tripod, or slowly orbiting), adds pixel noise and dropped points, and returns the tracks with
+along a smooth trajectory inside its joint limits, films it with a realistic static pinhole camera (a
+phone or an industrial camera with a 6-12 mm lens, some with lens distortion; weak-perspective cameras,
+static or slowly orbiting, as options), adds pixel noise and dropped points, and returns the tracks with
 the truth (joint angles, 3D points, cameras). Fit the tracks with :func:`chainspace.fit_joint_angles`
 and compare with :func:`chainspace.validate`.
 
@@ -22,7 +23,14 @@ from ..chain import KinematicChain
 from ..errors import DescriptionError, TrackError, is_real
 from ..robot.kinematics import RobotKinematics
 
-__all__ = ["RobotTrial", "synthesize", "random_trajectory", "milling_trajectory"]
+__all__ = ["RobotTrial", "synthesize", "random_trajectory", "milling_trajectory", "singular_trajectory",
+           "conditioning", "CAMERAS", "TRAJECTORIES", "JOINT_RANGES"]
+
+CAMERAS = ("pinhole", "phone", "industrial", "static", "weak", "moving")
+TRAJECTORIES = ("random", "milling", "singular")
+JOINT_RANGES = ("comfort", "full")
+# industrial camera: a 1/1.2" sensor 11.3 mm wide imaged at 1920 x 1200 px (5.86 um pixels), lenses of 6-12 mm
+SENSOR_WIDTH_MM, INDUSTRIAL_SIZE = 11.3, (1920, 1200)
 
 
 @dataclass
@@ -64,26 +72,30 @@ class RobotTrial:
 # ---------------------------------------------------------------------------------------------------
 # trajectories
 # ---------------------------------------------------------------------------------------------------
-def _window(robot: RobotKinematics, margin: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
-    """Per degree of freedom (nv; q entry when every joint has one) the range a trajectory may use: the joint limits, but at most 72 degrees either side
-    of the rest pose for revolute joints, less a margin at each end. Within it the fit's rule for
-    discrete ambiguities (of two wrist configurations that put every tracked point in the same place,
-    the one nearer the rest pose; see :mod:`chainspace.robot.fit`) picks the true one."""
-    span = 0.4 * np.pi
+def _window(robot: RobotKinematics, margin: float = 0.1, full: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Per degree of freedom (nv) the range a trajectory may use, less a margin at each end.
+
+    ``full=False`` ("comfort"): the joint limits, but at most 72 degrees either side of the rest pose for
+    revolute joints. Within it the fit's rule for discrete ambiguities (of two wrist configurations that
+    put every tracked point in the same place, the one nearer the rest pose; see :mod:`chainspace.robot.fit`)
+    picks the true one. ``full=True``: the URDF limits, continuous joints (and unlimited ones) +-pi
+    about rest, where that rule can pick wrong: the range a benchmark must cover."""
+    span = np.pi if full else 0.4 * np.pi
     rest = robot.angles(robot.q_rest)  # per degree of freedom (nv): continuous joints as angles
     lo = np.where(robot.limited_v, robot.lower_v, rest - span)
     hi = np.where(robot.limited_v, robot.upper_v, rest + span)
-    rev = robot.turns_v
-    lo = np.where(rev, np.maximum(lo, rest - span), lo)
-    hi = np.where(rev, np.minimum(hi, rest + span), hi)
+    if not full:
+        rev = robot.turns_v
+        lo = np.where(rev, np.maximum(lo, rest - span), lo)
+        hi = np.where(rev, np.minimum(hi, rest + span), hi)
     pad = margin * (hi - lo)
     return lo + pad, hi - pad
 
 
 def _sinusoids(robot: RobotKinematics, n_frames: int, fps: float, rng: np.random.Generator,
-               amplitude: float, max_hz: float) -> np.ndarray:
+               amplitude: float, max_hz: float, full: bool = False) -> np.ndarray:
     t = np.arange(n_frames)[:, None, None] / float(fps)
-    lo, hi = _window(robot)
+    lo, hi = _window(robot, full=full)
     freq = rng.uniform(0.2, 1.0, (1, robot.nv, 3)) * max_hz
     phase = rng.uniform(0, 2 * np.pi, (1, robot.nv, 3))
     weights = rng.dirichlet(np.ones(3), robot.nv)[None]
@@ -110,17 +122,18 @@ def conditioning(robot: RobotKinematics, q: np.ndarray, seen: np.ndarray | None 
     return np.linalg.svd(J, compute_uv=False)[:, -1] if keep.any() else np.full(len(q), np.inf)
 
 
-def _typical_conditioning(robot: RobotKinematics, rng: np.random.Generator) -> float:
+def _typical_conditioning(robot: RobotKinematics, rng: np.random.Generator, full: bool = False) -> float:
     """Median :func:`conditioning` of random configurations inside the trajectory window."""
-    lo, hi = _window(robot)
+    lo, hi = _window(robot, full=full)
     probe = robot.clip(robot.from_angles(rng.uniform(lo, hi, (64, robot.nv))))
     return float(np.median(conditioning(robot, probe)))
 
 
-def _well_conditioned(robot: RobotKinematics, rng: np.random.Generator, tries: int, make) -> np.ndarray:
+def _well_conditioned(robot: RobotKinematics, rng: np.random.Generator, tries: int, make,
+                      full: bool = False) -> np.ndarray:
     """Of up to ``tries`` paths (F, nq) from ``make()``, the first whose :func:`conditioning` (on about
     60 frames) stays above half the robot's typical value, else the best."""
-    typical = _typical_conditioning(robot, rng)
+    typical = _typical_conditioning(robot, rng, full)
     best, best_c = None, -np.inf
     for _ in range(tries):
         q = make()
@@ -133,16 +146,56 @@ def _well_conditioned(robot: RobotKinematics, rng: np.random.Generator, tries: i
 
 
 def random_trajectory(robot: RobotKinematics, n_frames: int, fps: float, rng: np.random.Generator,
-                      *, amplitude: float = 0.45, max_hz: float = 0.3, tries: int = 40) -> np.ndarray:
+                      *, amplitude: float = 0.45, max_hz: float = 0.3, tries: int = 40,
+                      full: bool = False) -> np.ndarray:
     """Smooth random joint motion (F, nq) away from singularities.
 
     Per joint a sum of three sinusoids of random low frequency (at most ``max_hz``) and phase, about a
-    random centre of its window (:func:`_window`), reaching ``amplitude`` of the window's half width,
-    clipped into the limits. Of up to ``tries`` such motions the first whose :func:`conditioning`
-    stays above half the robot's typical value is taken (else the best): near a singularity joints
-    cannot be told apart by any camera, which says nothing about a camera set-up.
+    random centre of its window (:func:`_window`; ``full``: the whole joint range), reaching
+    ``amplitude`` of the window's half width, clipped into the limits. Of up to ``tries`` such motions
+    the first whose :func:`conditioning` stays above half the robot's typical value is taken (else the
+    best): near a singularity joints cannot be told apart by any camera, which says nothing about a
+    camera set-up (:func:`singular_trajectory` goes through one on purpose).
     """
-    return _well_conditioned(robot, rng, tries, lambda: _sinusoids(robot, n_frames, fps, rng, amplitude, max_hz))
+    return _well_conditioned(robot, rng, tries,
+                             lambda: _sinusoids(robot, n_frames, fps, rng, amplitude, max_hz, full), full)
+
+
+def _singular_pose(robot: RobotKinematics, rng: np.random.Generator, full: bool, sweeps: int = 2,
+                   grid: int = 25) -> np.ndarray:
+    """(nq,) a configuration where :func:`conditioning` is (near) its minimum: of 128 random ones the
+    worst, then each joint in turn set to the value on a grid over its window that lowers it most (a
+    wrist stretched straight: two axes aligned)."""
+    lo, hi = _window(robot, 0.05, full)
+    a = rng.uniform(lo, hi, (128, robot.nv))
+    a = a[int(np.argmin(conditioning(robot, robot.clip(robot.from_angles(a)))))]
+    for _ in range(sweeps):
+        for v in range(robot.nv):
+            trial = np.repeat(a[None], grid, 0)
+            trial[:, v] = np.linspace(lo[v], hi[v], grid)
+            a = trial[int(np.argmin(conditioning(robot, robot.clip(robot.from_angles(trial)))))]
+    return robot.clip(robot.from_angles(a[None]))[0]
+
+
+def singular_trajectory(robot: RobotKinematics, n_frames: int, fps: float, rng: np.random.Generator,
+                        *, amplitude: float = 0.3, max_hz: float = 0.3, full: bool = False) -> np.ndarray:
+    """Smooth joint motion (F, nq) that passes through a singularity in its middle frame.
+
+    A singular configuration (:func:`_singular_pose`: typically the wrist stretched straight, where two
+    joint axes align and only the sum of their angles is seen) plus, per joint, a smooth random motion
+    (as :func:`random_trajectory`) that is zero in the middle frame, reaching ``amplitude`` of the
+    window's half width; clipped into the limits. The path a robot programmer avoids and a benchmark
+    must include: near the middle frame no camera splits the aligned joints.
+    """
+    lo, hi = _window(robot, full=full)
+    q0 = _singular_pose(robot, rng, full)
+    t = (np.arange(n_frames)[:, None, None] - n_frames // 2) / float(fps)
+    freq = rng.uniform(0.2, 1.0, (1, robot.nv, 3)) * max_hz
+    phase = rng.uniform(0, 2 * np.pi, (1, robot.nv, 3))
+    weights = rng.dirichlet(np.ones(3), robot.nv)[None]
+    wave = (weights * (np.sin(2 * np.pi * freq * t + phase) - np.sin(phase))).sum(-1)
+    a = robot.angles(q0[None]) + amplitude * 0.5 * (hi - lo) * wave / max(np.abs(wave).max(), 1e-12)
+    return robot.clip(robot.from_angles(a))
 
 
 def _tip_index(chain: KinematicChain) -> int:
@@ -181,11 +234,12 @@ def _rounded_rectangle(n: int, width: float, height: float, radius: float) -> np
     return out
 
 
-def _working_pose(robot: RobotKinematics, tip: int, rng: np.random.Generator, n: int = 400) -> np.ndarray:
+def _working_pose(robot: RobotKinematics, tip: int, rng: np.random.Generator, n: int = 400,
+                  full: bool = False) -> np.ndarray:
     """A configuration to mill from: dexterous (large manipulability of the tip), tool pointing down,
     tip in front of the robot between its base and shoulder height."""
     pin = robot.pin
-    lo, hi = _window(robot, 0.2)
+    lo, hi = _window(robot, 0.2, full)
     qs = robot.clip(robot.from_angles(rng.uniform(lo, hi, (n, robot.nv))))
     pos, jac = robot.jacobians(qs)
     base = pos[:, robot.chain.joint_index(robot.chain.root)]
@@ -204,7 +258,7 @@ def _working_pose(robot: RobotKinematics, tip: int, rng: np.random.Generator, n:
 
 
 def milling_trajectory(robot: RobotKinematics, n_frames: int, rng: np.random.Generator,
-                       *, size: float = 0.2, laps: float = 1.0, tries: int = 10) -> np.ndarray:
+                       *, size: float = 0.2, laps: float = 1.0, tries: int = 10, full: bool = False) -> np.ndarray:
     """Joint motion (F, nq) whose tool tip (the deepest chain point) traces a rounded rectangle in a
     horizontal plane, from a dexterous working pose, solved by damped least-squares IK on the tip's
     position (Pinocchio frame Jacobian; minimum-norm steps, so the other joints move as little as they
@@ -214,14 +268,15 @@ def milling_trajectory(robot: RobotKinematics, n_frames: int, rng: np.random.Gen
     Of up to ``tries`` working poses the first whose path keeps :func:`conditioning` above half the
     robot's typical value is taken (else the best): a path through a wrist singularity (the wrist
     stretched straight) is one a robot programmer avoids, and no camera can split the joints there.
+    ``full``: working poses drawn over the whole joint ranges.
     """
-    return _well_conditioned(robot, rng, tries, lambda: _milling_path(robot, n_frames, rng, size, laps))
+    return _well_conditioned(robot, rng, tries, lambda: _milling_path(robot, n_frames, rng, size, laps, full), full)
 
 
 def _milling_path(robot: RobotKinematics, n_frames: int, rng: np.random.Generator, size: float,
-                  laps: float) -> np.ndarray:
+                  laps: float, full: bool = False) -> np.ndarray:
     tip = _tip_index(robot.chain)
-    q = _working_pose(robot, tip, rng)
+    q = _working_pose(robot, tip, rng, full=full)
     start = robot.positions(q)[0, tip]
     reach = robot.reach()
     w, h = size * reach, 0.6 * size * reach
@@ -253,15 +308,16 @@ def synthesize(
     *,
     n_frames: int = 300,
     fps: float = 30.0,
-    camera: str = "static",
+    camera: Any = "pinhole",
     noise_px: float = 1.0,
     drop: float = 0.0,
     image_height_px: float = 800.0,
     seed: Any = None,
     trajectory: str | None = "random",
+    joint_range: str = "comfort",
     elevation_deg: float | None = None,
     distance_reaches: float | None = None,
-    image_size: tuple[int, int] = (1920, 1080),
+    image_size: tuple[int, int] | None = None,
     focal_px: float | None = None,
     dist: Any = None,
 ) -> RobotTrial:
@@ -274,28 +330,37 @@ def synthesize(
     n_frames, fps
         Length and frame rate of the recording.
     camera
-        ``"static"`` (one weak-perspective camera, a tripod) or ``"moving"`` (orbits 10 degrees about
-        the vertical over the sequence). Random azimuth; elevation random in [10, 35] degrees above the
-        base plane unless ``elevation_deg`` is given.
+        The default, ``"pinhole"``, is a realistic static camera drawn from the seed: half the time a
+        phone (``"phone"``: 1920 x 1080 px, focal 0.8-1.2 x the width, no distortion: phones correct it),
+        else an industrial camera (``"industrial"``: 1920 x 1200 px on an 11.3 mm sensor, a 6-12 mm lens,
+        barrel distortion k1 in [-0.25, -0.05], k2 in [0, 0.08]); with ``focal_px`` given, a phone. It stands 1.5-4 robot reaches
+        (``distance_reaches``) from the centre of the trajectory's points, moved back when needed so
+        that every point stays in the image, at a random azimuth and the elevation below. Also a camera
+        object with ``K`` (and ``dist``), or a 3x3 matrix K. Weak perspective as options: ``"static"``
+        (``"weak"``; one camera, a tripod far away) or ``"moving"`` (orbits 10 degrees about the
+        vertical over the sequence), the robot spanning ``image_height_px``.
+        Elevation random in [10, 35] degrees above the base plane unless ``elevation_deg`` is given
+        (negative: below it, as for a ceiling-mounted robot or a low tripod).
     noise_px
         Standard deviation of Gaussian noise per image coordinate, pixels.
     drop
         Fraction of points dropped at random (NaN in the tracks, confidence 0).
     image_height_px
-        The robot's extent in the image over the sequence (the larger side of its bounding box), px.
+        Weak perspective only: the robot's extent in the image over the sequence (the larger side of its
+        bounding box), px.
     trajectory
-        ``"random"`` (smooth random motion of every joint within its limits) or ``"milling"`` (the tool
-        tip traces a rounded rectangle in a horizontal plane, tool orientation held).
-    camera (pinhole)
-        ``"pinhole"``, or a camera with ``K`` (and ``dist``), or a 3x3 matrix K: one static pinhole camera
-        (perspective projection, pixels) at ``distance_reaches`` robot reaches (random in [1.5, 3] when
-        None) from the centre of the trajectory's points, looking at it from a random azimuth and the
-        elevation above (``elevation_deg`` < 0: below the base plane). ``"weak"`` is ``"static"``.
+        ``"random"`` (smooth random motion of every joint, away from singularities), ``"milling"`` (the
+        tool tip traces a rounded rectangle in a horizontal plane, tool orientation held) or
+        ``"singular"`` (smooth random motion through a singular configuration in the middle frame: two
+        joint axes aligned, e.g. a wrist stretched straight; see :func:`singular_trajectory`).
+    joint_range
+        ``"comfort"`` (revolute joints within 72 degrees of rest, inside the limits: where the fit's
+        tie rules pick right) or ``"full"`` (the URDF limits; continuous joints +-180 degrees).
     image_size, focal_px, dist
-        Pinhole filming (:class:`chainspace.cameras.PinholeCamera` projects, distortion included): image
+        Pinhole cameras (:class:`chainspace.cameras.PinholeCamera` projects, distortion included): image
         (width, height) px (principal point at its centre unless K gives one; a camera's own size wins);
-        focal length px (random in 0.8-1.2 x the width when None); lens distortion (k1, k2, p1, p2, k3)
-        applied to the tracks (OpenCV's model). ``image_height_px`` is ignored (the distance sets the size).
+        focal length px; lens distortion (k1, k2, p1, p2, k3) applied to the tracks (OpenCV's model).
+        Given, each overrides what the camera kind would draw.
     seed
         Seed for the trajectory, camera, noise and drops.
     """
@@ -318,7 +383,8 @@ def synthesize(
     pinhole_cam = None
     if isinstance(camera, str) and camera == "weak":
         camera = "static"
-    need = "camera must be 'static', 'weak', 'moving', 'pinhole' or a camera (a PinholeCamera, a 3x3 K or a calibration file)"
+    need = ("camera must be " + ", ".join(map(repr, CAMERAS)) +
+            " or a camera (a PinholeCamera, a 3x3 K or a calibration file)")
     if not isinstance(camera, str):
         from ..cameras.pinhole import as_camera
         from ..errors import CameraError
@@ -327,16 +393,19 @@ def synthesize(
             pinhole_cam = as_camera(camera)
         except CameraError as exc:
             raise CameraError(f"{need}, not {camera!r}: {exc}") from None
-        camera = "pinhole"
-    if camera not in ("static", "moving", "pinhole"):
+        camera = "given"
+    elif camera not in CAMERAS:
         raise DescriptionError(f"{need}, not {camera!r}")
     if distance_reaches is not None:
         distance_reaches = number("distance_reaches", distance_reaches, lambda v: v > 0, "a number > 0 (reaches)")
     if focal_px is not None:
         focal_px = number("focal_px", focal_px, lambda v: v > 0, "a number > 0 (pixels)")
     trajectory = "random" if trajectory is None else trajectory
-    if not isinstance(trajectory, str) or trajectory not in ("random", "milling"):
-        raise DescriptionError(f"trajectory must be 'random' or 'milling', not {trajectory!r}")
+    if not isinstance(trajectory, str) or trajectory not in TRAJECTORIES:
+        raise DescriptionError(f"trajectory must be one of {', '.join(map(repr, TRAJECTORIES))}, not {trajectory!r}")
+    if not isinstance(joint_range, str) or joint_range not in JOINT_RANGES:
+        raise DescriptionError(f"joint_range must be one of {', '.join(map(repr, JOINT_RANGES))}, not {joint_range!r}")
+    full = joint_range == "full"
     try:
         rng = np.random.default_rng(seed)
     except (TypeError, ValueError) as e:
@@ -346,12 +415,18 @@ def synthesize(
     from .views import observe, orbit_cameras
 
     robot = RobotKinematics(chain.metadata["urdf_path"], chain)
-    q = (random_trajectory(robot, n_frames, fps, rng) if trajectory == "random"
-         else milling_trajectory(robot, n_frames, rng))
+    if trajectory == "random":
+        q = random_trajectory(robot, n_frames, fps, rng, full=full)
+    elif trajectory == "milling":
+        q = milling_trajectory(robot, n_frames, rng, full=full)
+    else:
+        q = singular_trajectory(robot, n_frames, fps, rng, full=full)
     positions = robot.positions(q)
     elev = rng.uniform(10.0, 35.0) if elevation_deg is None else float(elevation_deg)
     cam_seed = int(rng.integers(2 ** 31))
-    if camera == "pinhole":
+    if camera not in ("static", "moving"):
+        if pinhole_cam is None:
+            pinhole_cam = _draw_camera(camera, cam_seed, image_size, focal_px, dist)
         return _film_pinhole(chain, robot, q, positions, rng, elev, cam_seed, pinhole_cam, distance_reaches,
                              image_size, focal_px, dist, noise_px, drop, fps, trajectory)
     unit = orbit_cameras(n_frames, sweep_deg=0.0 if camera == "static" else 10.0, elevation_deg=elev,
@@ -374,29 +449,58 @@ def synthesize(
                       noise_px=float(noise_px), trajectory=trajectory)
 
 
+def _draw_camera(kind: str, cam_seed: int, image_size, focal_px, dist):
+    """The pinhole camera of ``kind`` ("pinhole": phone or industrial, drawn; "phone"; "industrial"), its
+    focal length, size and distortion drawn from ``cam_seed`` unless given (see :func:`synthesize`)."""
+    from ..cameras.pinhole import PinholeCamera
+
+    # a generator of its own, so that the camera drawn leaves the trajectory and noise of a seed unchanged
+    r = np.random.default_rng([cam_seed, 17])
+    if kind == "pinhole":  # a focal given in pixels, without a lens: the phone-like camera it always was
+        kind = "phone" if r.random() < 0.5 or focal_px is not None else "industrial"
+    if kind == "phone":
+        w, h = image_size or (1920, 1080)
+        f = r.uniform(0.8, 1.2) * w
+        d = None
+    else:
+        w, h = image_size or INDUSTRIAL_SIZE
+        f = r.uniform(6.0, 12.0) / SENSOR_WIDTH_MM * w
+        d = (r.uniform(-0.25, -0.05), r.uniform(0.0, 0.08), 0.0, 0.0, 0.0)
+    f = f if focal_px is None else focal_px
+    d = d if dist is None else dist
+    return PinholeCamera(f, f, w / 2, h / 2, d, int(w), int(h))
+
+
 def _film_pinhole(chain, robot, q, positions, rng, elev, cam_seed, cam, distance_reaches, image_size, focal_px,
                   dist, noise_px, drop, fps, trajectory) -> RobotTrial:
     """One static pinhole camera looking at the centre of the trajectory's points (see synthesize)."""
     from ..cameras.pinhole import PinholeCamera
     from .views import look_rotation
 
-    w, h = (float(v) for v in image_size)
     F = len(q)
-    d = rng.uniform(1.5, 3.0) if distance_reaches is None else float(distance_reaches)
-    f = (rng.uniform(0.8, 1.2) * w if focal_px is None else float(focal_px))
-    if cam is None:
-        cam = PinholeCamera(f, f, w / 2, h / 2, dist, int(w), int(h))
-    else:
-        if cam.image_size is not None:
-            w, h = (float(v) for v in cam.image_size)
-        cam = PinholeCamera(cam.fx, cam.fy, cam.cx, cam.cy, cam.dist if dist is None else dist, int(w), int(h))
+    d = rng.uniform(1.5, 4.0) if distance_reaches is None else float(distance_reaches)
+    w, h = (float(v) for v in (cam.image_size or image_size or (1920, 1080)))
+    cam = PinholeCamera(cam.fx, cam.fy, cam.cx, cam.cy, cam.dist if dist is None else dist, int(w), int(h))
     az = np.random.default_rng(cam_seed).uniform(0, 2 * np.pi)
     R = look_rotation(az, np.deg2rad(elev))
     target = positions.reshape(-1, 3).mean(0)
-    centre = target - R[2] * d * robot.reach()
-    t = -R @ centre
-    y = positions @ R.T + t
-    if (y[..., 2] <= 0.05 * robot.reach()).any():
+    reach = robot.reach()
+    for _ in range(8 if distance_reaches is None else 1):
+        t = -R @ (target - R[2] * d * reach)
+        y = positions @ R.T + t
+        if distance_reaches is not None or (y[..., 2] <= 0.05 * reach).any():
+            if distance_reaches is None:
+                d *= 1.5
+                continue
+            break
+        # back off until every point is inside the image (5 % margin), as a camera operator frames a shot
+        xy = y[..., :2] / y[..., 2:]
+        lens = np.array([cam.fx, cam.fy])
+        out = np.abs(xy * lens).max((0, 1)) / (0.45 * np.array([w, h]))
+        if out.max() <= 1.0:
+            break
+        d *= float(out.max()) * 1.02
+    if (y[..., 2] <= 0.05 * reach).any():
         raise TrackError("the robot reaches behind or into the pinhole camera: increase distance_reaches")
     clean = cam.project(y)
     tracks = clean + np.random.default_rng(int(rng.integers(2 ** 31))).normal(0, noise_px, clean.shape)

@@ -1,0 +1,56 @@
+"""No silent failure (issue 21): robots over their full joint ranges, cameras above and below the base.
+
+    python benchmarks/bench_full_range.py                          # 16 robots x (above, below), 60 frames
+    python benchmarks/bench_full_range.py --robots ur10 panda --frames 30
+    python benchmarks/bench_full_range.py --settings "singular, above" --camera static
+    python benchmarks/bench_full_range.py --quick                  # 2 robots x 1 setting, 20 frames
+
+Prints one markdown table, then every silent failure, every flagged joint with its reason and every run
+that returned no fit (see chainspace.bench.full_range). Exit code 1 when a robot misses the target
+(every joint within 2 degrees RMS or flagged, no crash).
+"""
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from chainspace.bench.full_range import (DEFAULT_SETTINGS, ROBOTS, SETTINGS, format_full_range, run_full_range,
+                                         summarise)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--robots", nargs="+", default=None, help=f"default: {' '.join(ROBOTS)}")
+    p.add_argument("--settings", nargs="+", choices=list(SETTINGS), default=None)
+    p.add_argument("--camera", default="pinhole", choices=["pinhole", "phone", "industrial", "static"],
+                   help="pinhole (default: a phone or an industrial camera, intrinsics given to the fit) or "
+                        "static (weak perspective)")
+    p.add_argument("--frames", type=int, default=None, help="frames per run (default 60; --quick 20)")
+    p.add_argument("--seeds", type=int, default=1)
+    p.add_argument("--quick", action="store_true", help="milling arm and UR5, full range from above, 20 frames")
+    p.add_argument("--json", default=None, help="also write every run to this JSON file (refuses to overwrite)")
+    p.add_argument("--from-json", nargs="+", default=None, help="print the table of runs saved with --json")
+    a = p.parse_args(argv)
+    robots = a.robots or (["milling_arm", "ur5"] if a.quick else list(ROBOTS))
+    settings = a.settings or (["full, above"] if a.quick else list(DEFAULT_SETTINGS))
+    frames = a.frames or (20 if a.quick else 60)
+    def save(runs, first=[True]):  # every run as it comes: a long table survives an interruption
+        from chainspace.io.results import atomic_write
+
+        with atomic_write(Path(a.json), overwrite=not first[0]) as fh:
+            fh.write(json.dumps(runs, indent=1, default=float))
+        first[0] = False
+
+    if a.from_json:
+        runs = [r for f in a.from_json for r in json.loads(Path(f).read_text())]
+    else:
+        runs = run_full_range(robots, settings, camera=a.camera, n_frames=frames, seeds=a.seeds,
+                              progress=lambda m: print(m, file=sys.stderr, flush=True),
+                              on_run=save if a.json else None)
+    print(format_full_range(runs, camera=a.camera, n_frames=frames))
+    return 0 if all(r["verdict"].startswith("met") for r in summarise(runs)) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

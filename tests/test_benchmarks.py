@@ -1,0 +1,113 @@
+"""Every benchmark runner in benchmarks/ runs at its smallest setting and prints its table; the tables
+count every run (issue 21: a benchmark that cannot hide a failure)."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from chainspace.bench.full_range import format_full_range, summarise
+from chainspace.bench.hidden_ends import format_hidden_ends
+from chainspace.bench.robustness import check_targets, find_cliffs
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+# each script's smallest setting (a few frames, one robot or sequence) and a string its output must hold;
+# a script not listed here is run with --quick (other suites: give them a small setting here)
+SMALLEST = {
+    "bench_full_range.py": (["--robots", "double_pendulum", "--frames", "6", "--settings", "full, below"],
+                            "| double_pendulum | 1 | "),
+    # the 2-joint double pendulum: a 6-axis arm's fit takes half a minute even on 8 frames
+    "bench_robots.py": (["--robots", "double_pendulum", "--frames", "8", "--seeds", "1", "--static-1px"],
+                        "| double_pendulum |"),
+    "bench_pinhole_robots.py": (["--robots", "double_pendulum", "--conditions", "K", "--frames", "8"],
+                                "| double_pendulum | K |"),
+    "bench_hidden_ends.py": (["--robot", "double_pendulum", "--trials", "1", "--frames", "9", "--decays", "none"],
+                             "| none | 2 |"),
+    "bench_robustness.py": (["--quick", "--datasets", "walk35", "--cameras", "1", "--sweeps", "noise"],
+                            "### walk35"),
+    "bench_static_camera.py": (["--set", "tune", "--quick", "--frames", "40"], "| tune | straight | 0 | 1 |"),
+}
+# bench_batch.py starts two Dask clusters and a fresh process (tens of seconds even --quick): its pieces
+# are run here instead (test_batch_benchmark_recordings)
+SLOW = {"bench_batch.py"}
+
+
+def _main(name: str):
+    spec = importlib.util.spec_from_file_location(name[:-3], BENCH / name)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.main
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in BENCH.glob("bench_*.py")
+                                        if p.name not in SLOW | {"bench_reconstruction.py"}))
+def test_every_benchmark_runs_its_smallest_setting(name, capsys, monkeypatch):
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "1")
+    argv, expect = SMALLEST.get(name, (["--quick"], "|"))
+    rc = _main(name)(argv)
+    out = capsys.readouterr().out
+    assert rc in (0, 1), f"{name} exited {rc}"  # 1: a target missed, which the table says
+    assert expect in out, out[-2000:]
+
+
+def test_batch_benchmark_recordings(tmp_path):
+    spec = importlib.util.spec_from_file_location("bench_batch", BENCH / "bench_batch.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    recs = mod.read_manifest(mod.make_recordings(tmp_path, 1, 12))
+    res = mod.process_recording(recs[0], tmp_path / "out")
+    assert res["cpu_seconds"] > 0 and len(recs) == 1
+
+
+def test_reconstruction_benchmark_without_its_data_says_skipped(capsys, monkeypatch, tmp_path):
+    monkeypatch.setenv("CHAINSPACE_DATA", str(tmp_path))  # an empty data folder: no CMU, no DeepMimic
+    from chainspace.bench import reconstruction
+
+    monkeypatch.setattr(reconstruction, "sequence_groups", lambda *a, **k: {})
+    rc = _main("bench_reconstruction.py")(["--quick"])
+    assert rc == 77 and "skipped: no benchmark data" in capsys.readouterr().err
+
+
+def _run(robot, outcome="fit", errors=(), statuses=None, setting="full, above"):
+    statuses = statuses or ["observable"] * len(errors)
+    joints = [dict(name=f"j{k}", status=s, error=e, unit="deg",
+                   verdict="ok" if e <= 2 else ("flagged" if s not in ("observable", "relative to frame 0") else "silent"),
+                   reason=s) for k, (e, s) in enumerate(zip(errors, statuses))]
+    return dict(robot=robot, setting=setting, seed=0, outcome=outcome, joints=joints if outcome == "fit" else [],
+                error_3d_mm=1.0 if outcome == "fit" else np.nan, seconds=1.0, note="boom" if outcome != "fit" else "")
+
+
+def test_full_range_table_counts_silent_flags_and_failures():
+    runs = [_run("good", errors=(0.5, 1.0)),
+            _run("flagged", errors=(0.5, 177.0), statuses=["observable", "ambiguous"]),
+            _run("silent", errors=(0.5, 177.0)), _run("silent", outcome="crashed"),
+            _run("refused", outcome="refused")]
+    rows = {r["robot"]: r for r in summarise(runs)}
+    assert rows["good"]["verdict"] == "met" and rows["flagged"]["verdict"] == "met"
+    assert rows["flagged"]["flagged"] == 1 and rows["flagged"]["judged"] == [0.5]  # the flag's error apart
+    assert rows["silent"]["verdict"] == "missed" and rows["silent"]["crashed"] == 1 and rows["silent"]["silent"] == 1
+    assert rows["refused"]["verdict"] == "refused"
+    text = format_full_range(runs)
+    assert "Target met on 2 of 4 robots" in text and "j1 (full, above, 177 deg)" in text and "boom" in text
+
+
+def test_hidden_ends_table_keeps_a_flipped_run_in_its_mean_and_max():
+    rows = [dict(trial=k, end="last", decay=None, worst_deg=w, error_mm=10.0, silent=["a4"] if w > 90 else [])
+            for k, w in enumerate((4.0, 5.0, 177.0))]
+    line = format_hidden_ends(rows).splitlines()[-1]
+    assert line.startswith("| none | 3 | 1 | 1 | 62.00 | 177.00 |"), line
+
+
+def test_robustness_targets_judge_joints_and_failed_runs():
+    base = dict(dataset="milling arm", noise_px=2.0, hidden=0.0, ratio=1.0, silent_flips=0, runs=1, failed=0)
+    rows = [dict(base, sweep="random", missing=m, hidden=m, error_mm=8.0, joint_rms_deg=d)
+            for m, d in ((0.0, 1.0), (0.2, 1.1), (0.4, 178.0))]
+    rows[2]["silent_flips"] = 1
+    res = {name: ok for name, ok, _ in check_targets(rows)}
+    assert res["milling arm: no cliff in the random sweep"]  # every point in place
+    assert not res["milling arm: no cliff in the random sweep (worst joint RMS)"]  # the flipped wrist
+    assert not res["milling arm: no silent flip (a joint > 90 deg off, reported observable)"]
+    assert find_cliffs([0, 1, 2], [5.0, 6.0, np.inf])["cliff"][-1]  # a failed run is a cliff
