@@ -30,7 +30,7 @@ def run(name: str, n_frames: int, noise: float, seed: int) -> dict:
     from chainspace.synthetic.robot import synthesize
 
     chain = robot_chain(name)
-    trial = synthesize(chain, n_frames=n_frames, noise_px=noise, seed=seed)
+    trial = synthesize(chain, n_frames=n_frames, noise_px=noise, seed=seed, camera="static")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         rec = reconstruct(trial.tracks, chain, seed=seed)
@@ -49,7 +49,10 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--noise", type=float, default=1.0, help="pixel noise (default 1)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--quick", action="store_true", help="the milling arm on 30 frames (a smoke run)")
     a = p.parse_args(argv)
+    if a.quick:
+        a.robots, a.frames = ["milling arm"], 30
     rows = []
     for name in a.robots:
         r = run(name, a.frames, a.noise, a.seed)

@@ -177,7 +177,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--window", type=int, nargs="*", default=[21], help="patch side(s) of the tracker, px")
     ap.add_argument("--plot", type=Path, help="write the error over the frames as a PNG")
     ap.add_argument("--lk-only", action="store_true", help="also run without the ECC refinement")
+    ap.add_argument("--quick", action="store_true", help="640x480, 60 frames (a smoke run)")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.sizes, args.frames, args.every = ["640x480"], 60, 30
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for size in args.sizes:

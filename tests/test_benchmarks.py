@@ -33,6 +33,9 @@ SMALLEST = {
 # bench_batch.py starts two Dask clusters and a fresh process (tens of seconds even --quick): its pieces
 # are run here instead (test_batch_benchmark_recordings)
 SLOW = {"bench_batch.py"}
+# bench_fit_speed.py --quick fits the milling arm (half a minute): the robot-fit runners above cover its code
+# path on the double pendulum, so it is given the smallest robot here too
+SMALLEST["bench_fit_speed.py"] = (["--robots", "double_pendulum", "--frames", "8"], "| double_pendulum |")
 
 
 def _main(name: str):
