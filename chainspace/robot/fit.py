@@ -156,7 +156,8 @@ from .solver import _huber, _motion_prior, _noise_sigma, _rms_per_frame, _robust
 from .starts import _fit_3d, _initial_camera, _sequential_ik
 from .observability import _fill_unseen, _gauge_directions, _hold, _notes, _structural, _unseen
 from .candidates import FACE_ON_DEG, _face_on_planes, _frame_ranges, _nearest_rest_branch, _viterbi_reanchored
-from .selection import _most_probable, _prefer_rest
+from .selection import _most_probable, _prefer_rest, view_side_valid
+from .uncertainty import assess_fit
 
 __all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"]
 
@@ -367,6 +368,7 @@ def fit_joint_angles(
 
     # ---- step 2: refine on the tracks; both mirrors unless the 3D fit told them apart clearly
     residual_px = cams = ts2 = None
+    trust: dict = {}  # q_std, noise_px, alternatives, ambiguous (with tracks; chainspace.robot.uncertainty)
     smoothed = False  # by the acceleration prior, which also fills the frames where a direction is unseen
     converged = best["conv"]
     if refine and tracks is not None:
@@ -438,8 +440,11 @@ def fit_joint_angles(
                         n_obs=2 * int((w2 > 0).sum()), out=out, c=c, g2=g2,
                         q=out[0], gauge=g2, down=_looks_down(out[1]), free=free, free_prior=free_prior, delta=delta)
 
+        side_ok, side_why = view_side_valid(robot)  # legs hanging below their base: the camera side decides nothing
+
         def seen_from_wrong_side(r):
-            return view_from is not None and (r["down"] < -0.02 if view_from == "above" else r["down"] > 0.02)
+            return side_ok and view_from is not None and (r["down"] < -0.02 if view_from == "above" else
+                                                          r["down"] > 0.02)
 
         # both mirror images: a poor reconstruction may favour the wrong one in 3D
         results = [refine_2d(c) for c in candidates]
@@ -510,13 +515,14 @@ def fit_joint_angles(
                 results, mirror_tied = order(results + alts)
         r = results[0]
         sigma = _noise_sigma(r["out"][2], w2)
+        prior, scored = None, []
         if accel_std is not None and F >= 3 and not per_frame and sigma > 1e-6:
             # joint accelerations ~ N(0, accel_std^2) against pixel noise sigma: the prior's weight
             mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
             smoothed = True
             decay_frames = np.inf if speed_decay_s is None else speed_decay_s * float(fps)
-            scored: list = []
-            r, mirror_tied, it = _most_probable(robot, results, tracks, w2, _motion_prior(unseen2, mu, decay_frames),
+            prior = _motion_prior(unseen2, mu, decay_frames)
+            r, mirror_tied, it = _most_probable(robot, results, tracks, w2, prior,
                                                 max(sigma, px_floor), max_iter, tol, seen_from_wrong_side,
                                                 reflected_start, rebranch, scored)
             n_iter += it
@@ -525,6 +531,14 @@ def fit_joint_angles(
             _starts.extend(dict(q=x["out"][0], view=x["out"][1], free=x["free"], free_prior=x["free_prior"],
                                 delta=x["delta"], gauge=x["g2"], blind=blind, px_floor=px_floor) for x in results)
         (q, view, rn, pos_base, conv2, _), best, gauge = r["out"], r["c"], r["g2"]
+        # ---- how sure: per-joint standard deviations and the motions that tie (chainspace.robot.uncertainty)
+        if smoothed:
+            tie_var = max(sigma, px_floor) ** 2
+        else:  # refined fits compared on the tracks alone (as tracks_tie does)
+            tie_var = max(r["sse"] / max(r["n_obs"], 1), (0.05 * px_floor) ** 2)
+            scored = [(x["sse"], x) for x in results]
+        trust = assess_fit(robot, r, scored, tie_var, tracks, w2, prior, blind, gauge, seen_from_wrong_side,
+                           side_why if view_from is not None else "")
         converged = conv2  # the 3D stage only started this one
         residual_px = _rms_per_frame(rn, w2)
         cams = view.matrices()
@@ -557,6 +571,7 @@ def fit_joint_angles(
                          f"degrees of face-on in frames {_frame_ranges(frames)}: there the motion can pass unseen "
                          f"to its mirror image in depth ({', '.join(turned)} differ), so the branch after those "
                          "frames is a guess; track a point off that plane (extra_frames) to settle it")
+    notes += trust.get("notes", [])
     msg = "; ".join(notes) if notes else "all joints observable"
     if mirror_tied:
         msg += ("; the motion and its mirror image fit the data equally well (weak perspective): "
@@ -573,6 +588,8 @@ def fit_joint_angles(
         translation=t, cameras=cams, translations_2d=ts2, chain=chain, urdf_path=urdf,
         message=msg, n_iter=int(n_iter), relative=relative,
         tracks=tracks, confidence=confidence, positions_base=pos_base, input_poses=poses, timings=timings,
+        q_std=trust.get("q_std"), noise_px=trust.get("noise_px"), alternatives=trust.get("alternatives", []),
+        ambiguous=trust.get("ambiguous", np.zeros(robot.nv, bool)),
     )
 
 

@@ -28,6 +28,15 @@ class JointFit:
     ``intrinsics`` (K, undistort), ``camera_pose`` (R, t) with ``x_cam = R x_base + t`` in metres;
     ``focal_px``, ``focal_std_px`` when the focal length was estimated (also when it was not
     measurable and the weak-perspective fit is reported).
+
+    How sure the fit is (fits refined on 2D tracks; :mod:`chainspace.robot.uncertainty`): ``q_std``
+    (F, nv) one standard deviation per frame and joint, radians (metres for prismatic joints), from the
+    fit's Gauss-Newton covariance scaled by the measured pixel noise ``noise_px`` (px per image
+    coordinate); NaN where a joint is held (not observable). ``alternatives``: the other motions that
+    fit the tracks as well (a likelihood-ratio test), each ``{"angles": (F, nv), "score": how much
+    worse in noise variances, "settled_by": the rule that validly set it aside or None}``.
+    ``ambiguous`` (nv,) bool: joints where an unsettled alternative differs by more than
+    :data:`~chainspace.robot.uncertainty.AMBIGUOUS_DEG` degrees RMS (reported, not trusted).
     """
 
     q: np.ndarray
@@ -56,6 +65,10 @@ class JointFit:
     camera_pose: tuple[np.ndarray, np.ndarray] | None = None  # (R (3, 3), t (3,)): x_cam = R x_base + t, metres
     focal_px: float | None = None  # estimated focal length (image_size given, no intrinsics)
     focal_std_px: float | None = None
+    q_std: np.ndarray | None = None  # (F, nv) rad / m; NaN where held
+    noise_px: float | None = None  # measured pixel noise (per coordinate) that scales q_std
+    alternatives: list[dict] = field(default_factory=list)  # {"angles" (F, nv), "score", "settled_by"}
+    ambiguous: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # (nv,)
 
     @property
     def n_frames(self) -> int:
