@@ -73,6 +73,16 @@ variances of the best: a likelihood-ratio test), applies these rules:
   straight ramp across the gap, so every branch of that frame, bridged to the last sighting by a
   straight line and smoothed, can score alike: of those that tie, the motion that moves least
   (the sum of squared joint steps) is kept.
+* *The tie policy.* All the rules above use one candidate type (a fitted motion, ``q`` with the
+  solver's output), one tolerance (objectives within ``candidates.TIE_VARIANCES`` = 25 noise
+  variances), one de-duplication (motions within ``candidates.DISTINCT_RAD`` = 0.05 rad in every
+  frame and joint are one) and one distance to rest (``kinematics._rest_distance``). The camera-side
+  rule decides only where it is valid (``selection.view_side_valid``: the robot stands above its base
+  plane; legs or a hanging limb do not). What the rules could not settle validly is reported, not
+  hidden: ``fit.alternatives`` (the tied motions, the reported motion's exact depth-flip twins
+  included) and ``fit.ambiguous`` (joints where one differs by more than
+  ``uncertainty.AMBIGUOUS_DEG`` = 5 degrees RMS); ``fit.q_std`` gives per-frame standard deviations
+  from the fit's Gauss-Newton covariance (:mod:`chainspace.robot.uncertainty`).
 * *Singularities.* Where two joint axes align (a wrist stretched straight; a 7-axis arm's upper arm
   along its first axis) only the sum of their angles is seen, and a path may continue on either
   branch. Nothing in the tracks can split them there; plan paths (and camera checks) away from them,

@@ -181,7 +181,7 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     std[0, rel] = 0.0  # by definition: the joint is reported as its change since frame 0
     std[:, blind] = np.nan
     sigma = float(np.sqrt(var))
-    scored = [(s / var * sigma ** 2, x) for s, x in scored]  # objectives in units of sigma^2
+    scored = list(scored) + _exact_flips(robot, winner, scored, tracks, w, prior, free)
     alts = alternatives_of(robot, winner, scored, sigma, lambda x: "camera side" if wrong_side(x) else None)
     ambiguous, worst = ambiguous_joints(robot, robot.angles(q), alts, ~blind)
     notes = []
@@ -193,6 +193,34 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
                      f"{AMBIGUOUS_DEG:g} degrees RMS; the reported one is a guess (fit.alternatives)"
                      + (f"; {side_why}" if side_why else ""))
     return dict(q_std=std, noise_px=noise, alternatives=alts, ambiguous=ambiguous, ambiguity_deg=worst, notes=notes)
+
+
+def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict]], tracks: np.ndarray,
+                 w: np.ndarray, prior, free: np.ndarray) -> list[tuple[float, dict]]:
+    """The winner's exact twins, scored as ``scored`` is: per link, the motion with that link and
+    everything beyond it mirrored in depth (and the joints from each one on started from the other side
+    of the rest pose), fitted to the winner's points frame by frame
+    (:func:`chainspace.robot.candidates._depth_flips`). Where such a motion puts the tracked points
+    where the winner does, only the rest-pose rule chose between them (a planar wrist or leg mirrored
+    in depth): it is an alternative. Scored unsmoothed against the winner's objective (the same robust
+    loss, plus the motion prior when there is one), so a tie found here is a tie."""
+    from .candidates import _depth_flips
+    from .solver import _smoothed_objective
+
+    q, view, delta = winner["out"][0], winner["out"][1], winner["delta"]
+    if getattr(view, "per_frame", False) and prior is not None:
+        return []
+
+    def objective(qa):
+        pred = view.apply(robot.positions(qa))[0]
+        rn = np.linalg.norm(pred - np.nan_to_num(tracks), axis=-1)
+        if prior is None:
+            return float((w * rn ** 2).sum())
+        return _smoothed_objective(prior, robot.angles(qa), rn, w, delta)
+
+    base = next((s for s, x in scored if x is winner), min((s for s, _ in scored), default=0.0))
+    own = objective(q)
+    return [(base + objective(q_m) - own, {"q": q_m}) for q_m in _depth_flips(robot, q, view, free)]
 
 
 def _tie_variances() -> float:
