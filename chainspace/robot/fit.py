@@ -379,6 +379,7 @@ def fit_joint_angles(
     # ---- step 2: refine on the tracks; both mirrors unless the 3D fit told them apart clearly
     residual_px = cams = ts2 = None
     trust: dict = {}  # q_std, noise_px, alternatives, ambiguous (with tracks; chainspace.robot.uncertainty)
+    side_ok = True  # whether the camera-side rule applies (set with the tracks: selection.view_side_valid)
     smoothed = False  # by the acceleration prior, which also fills the frames where a direction is unseen
     converged = best["conv"]
     if refine and tracks is not None:
@@ -586,7 +587,8 @@ def fit_joint_angles(
     if mirror_tied:
         msg += ("; the motion and its mirror image fit the data equally well (weak perspective): "
                 + (f"the one seen from {view_from} the base plane is reported" if refine and tracks is not None
-                   and view_from else "the one nearer the rest pose is reported"))
+                   and view_from and side_ok else "the one nearer the rest pose is reported" if side_ok else
+                   "the camera side decides nothing here, so the reported one is a guess"))
     converged = np.broadcast_to(np.asarray(converged, bool), (F,)).copy()
     if not converged.all():
         msg = "the solver stopped before it converged; " + msg

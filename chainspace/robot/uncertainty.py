@@ -182,7 +182,7 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     std[:, blind] = np.nan
     sigma = float(np.sqrt(var))
     scored = list(scored) + _exact_flips(robot, winner, scored, tracks, w, prior, free)
-    alts = alternatives_of(robot, winner, scored, sigma, lambda x: "camera side" if wrong_side(x) else None)
+    alts = alternatives_of(robot, winner, scored, sigma, lambda x: "camera side" if "down" in x and wrong_side(x) else None)
     ambiguous, worst = ambiguous_joints(robot, robot.angles(q), alts, ~blind)
     notes = []
     if ambiguous.any():
