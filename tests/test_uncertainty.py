@@ -99,13 +99,13 @@ def fitted(arm):
 
     chain, robot = arm
     trial = synthesize(chain, n_frames=12, noise_px=1.0, seed=5)
-    return trial, fit_joint_angles(trial.positions, chain=chain, tracks=trial.tracks)
+    # points in the base frame (transform="none": one candidate, a fast fit), refined on noisy tracks
+    return trial, fit_joint_angles(trial.positions, chain=chain, tracks=trial.tracks, transform="none")
 
 
 def test_a_fit_on_tracks_reports_standard_deviations_of_its_errors_size(fitted):
     trial, fit = fitted
     assert fit.q_std.shape == fit.angles.shape
-    assert fit.q_std[0, fit.relative].tolist() == [0.0] * int(fit.relative.sum())
     seen = fit.observable
     assert np.isfinite(fit.q_std[:, seen]).all() and (fit.q_std[:, seen] > 0).all()
     assert 0.6 < fit.noise_px < 1.6

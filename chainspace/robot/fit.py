@@ -548,8 +548,10 @@ def fit_joint_angles(
         else:  # refined fits compared on the tracks alone (as tracks_tie does)
             tie_var = max(r["sse"] / max(r["n_obs"], 1), (0.05 * px_floor) ** 2)
             scored = [(x["sse"], x) for x in results]
+        t2 = time.perf_counter()
         trust = assess_fit(robot, r, scored, tie_var, tracks, w2, prior, blind, gauge, seen_from_wrong_side,
                            side_why if view_from is not None else "")
+        timings["uncertainty"] = time.perf_counter() - t2
         converged = conv2  # the 3D stage only started this one
         residual_px = _rms_per_frame(rn, w2)
         cams = view.matrices()

@@ -143,16 +143,19 @@ def alternatives_of(robot: RobotKinematics, winner: dict, scored: list[tuple[flo
 
 
 def ambiguous_joints(robot: RobotKinematics, angles: np.ndarray, alternatives: list[dict],
-                     judged: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                     judged: np.ndarray, relative: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(nv,) joints whose unsettled alternatives differ from ``angles`` (F, nv) by more than
     :data:`AMBIGUOUS_DEG` RMS over the frames (wrapped for turning joints; prismatic joints: that
-    many millimetres), among ``judged`` (nv,); and the largest such RMS
+    many millimetres), among ``judged`` (nv,), joints seen ``relative`` (nv,) to frame 0 compared as their
+    change since frame 0; and the largest such RMS
     difference per joint (degrees, or mm for prismatic joints; 0 without alternatives)."""
     worst = np.zeros(robot.nv)
     for alt in alternatives:
         if alt["settled_by"]:
             continue
         d = alt["angles"] - angles
+        if relative is not None:
+            d = d - np.where(relative, d[:1], 0.0)
         d = np.where(robot.turns_v, (d + np.pi) % (2 * np.pi) - np.pi, d)
         rms = np.sqrt(np.mean(d ** 2, axis=0)) * np.where(robot.prismatic_v, 1000.0, np.degrees(1.0))
         worst = np.maximum(worst, rms)
@@ -172,18 +175,19 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     motion prior it was smoothed with, or None; ``wrong_side(fit)``: the camera-side rule, True where
     it validly sets a fit aside; ``side_why``: why that rule does not apply here ("" when it does)."""
     q, view = winner["out"][0], winner["out"][1]
-    free = winner["free_prior"] if prior is not None else winner["free"]
+    rel = gauge & ~blind
+    free = (winner["free_prior"] if prior is not None else winner["free"]).copy()
+    free[0, rel] = False  # a turn of the camera imitates these: reported relative to frame 0, held there
     try:
         std, noise = joint_std(robot, q, tracks, w, view, free, winner["delta"], prior)
     except (np.linalg.LinAlgError, RuntimeError, ValueError):  # a singular system: nothing to say
         std, noise = np.full((len(q), robot.nv), np.nan), float("nan")
-    rel = gauge & ~blind
     std[0, rel] = 0.0  # by definition: the joint is reported as its change since frame 0
     std[:, blind] = np.nan
     sigma = float(np.sqrt(var))
     scored = list(scored) + _exact_flips(robot, winner, scored, tracks, w, prior, free)
     alts = alternatives_of(robot, winner, scored, sigma, lambda x: "camera side" if "down" in x and wrong_side(x) else None)
-    ambiguous, worst = ambiguous_joints(robot, robot.angles(q), alts, ~blind)
+    ambiguous, worst = ambiguous_joints(robot, robot.angles(q), alts, ~blind, rel)
     notes = []
     if ambiguous.any():
         names = [f"{robot.joint_names[k]} ({worst[k]:.0f} {'mm' if robot.prismatic_v[k] else 'deg'} RMS)"
