@@ -38,7 +38,7 @@ def run(robots, seeds: int, n_frames: int, progress=None) -> list[dict]:
         urdf, links = ROWS[name]
         chain = from_urdf(example_robot_urdf(urdf), links=links)
         good = flagged = silent = 0
-        worst_silent, secs, flagged_names = 0.0, 0.0, set()
+        worst_silent, secs, flagged_names, silent_rows = 0.0, 0.0, set(), []
         for seed in range(seeds):
             trial = synthesize(chain, n_frames=n_frames, noise_px=1.0, seed=seed)
             t0 = time.perf_counter()
@@ -53,6 +53,7 @@ def run(robots, seeds: int, n_frames: int, progress=None) -> list[dict]:
                     else:
                         silent += 1
                         worst_silent = max(worst_silent, j["rms"])
+                        silent_rows.append(f"{j['name']} {j['rms']:.1f} deg (std {j.get('std_median') or float('nan'):.1f})")
                 elif j["status"] == "ambiguous":
                     flagged += 1
                     flagged_names.add(j["name"])
@@ -60,17 +61,18 @@ def run(robots, seeds: int, n_frames: int, progress=None) -> list[dict]:
                 progress(f"{name} seed {seed}: {time.perf_counter() - t0:.0f} s; {fit.message[:160]}")
         rows.append(dict(robot=name, urdf=urdf, seeds=seeds, n_frames=n_frames, good=good, flagged=flagged,
                          silent=silent, worst_silent_deg=worst_silent, flagged_names=sorted(flagged_names),
+                         silent_rows=silent_rows,
                          seconds=secs))
     return rows
 
 
 def table(rows: list[dict]) -> str:
     out = [f"| robot | trials | joints within {LIMIT_DEG:g} deg RMS | flagged ambiguous | silent failures "
-           "(worst) | flagged joints |", "|---|---|---|---|---|---|"]
+           "(worst) | flagged joints | silent: error (reported median std) |", "|---|---|---|---|---|---|---|"]
     for r in rows:
         out.append(f"| {r['robot']} ({r['urdf']}) | {r['seeds']} x {r['n_frames']} frames | {r['good']} | "
                    f"{r['flagged']} | {r['silent']} ({r['worst_silent_deg']:.1f} deg) | "
-                   f"{', '.join(r['flagged_names']) or '-'} |")
+                   f"{', '.join(r['flagged_names']) or '-'} | {'; '.join(r['silent_rows']) or '-'} |")
     return "\n".join(out)
 
 
