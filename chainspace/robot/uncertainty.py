@@ -92,7 +92,8 @@ def joint_std(robot: RobotKinematics, q: np.ndarray, tracks: np.ndarray, w: np.n
         Hdata = sp.block_diag(list(Hqq), format="csr")
         M = sp.csr_matrix((F * nv, F * nv)) if prior is None else sp.diags(fr) @ prior @ sp.diags(fr)
         A = (Hdata + M).tocsc()
-        X = splu(A).solve(Hqc.reshape(F * nv, nc))  # A^-1 H_qc
+        lu = splu(A)
+        X = lu.solve(Hqc.reshape(F * nv, nc))  # A^-1 H_qc
         S = Hcc[0] - Hqc.reshape(F * nv, nc).T @ X + 1e-12 * np.eye(nc) * np.trace(Hcc[0])
         S_inv = np.linalg.inv(S)
         Ad, Bd = _pair_blocks(A, F, nv)
