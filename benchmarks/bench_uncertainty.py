@@ -56,8 +56,11 @@ def run(trials: int, n_frames: int, robot: str, noise_px: float, progress=None, 
         std2.append(s ** 2)
         n_amb += int(np.asarray(fit.ambiguous, bool).any())
         if progress:
-            progress(f"trial {seed + 1}/{trials}: within 1 std {np.nanmean(inside1[-1]):.2f}, "
-                     f"{time.perf_counter() - t0:.1f} s")
+            worst = np.degrees(np.sqrt(np.nanmean(err2[-1], axis=0)))
+            flagged = [n for n, a in zip(names, np.asarray(fit.ambiguous, bool)) if a]
+            progress(f"trial {seed + 1}/{trials}: within 1 std {np.nanmean(inside1[-1]):.2f}, worst joint "
+                     f"{names[int(np.nanargmax(worst))]} {np.nanmax(worst):.1f} deg RMS, ambiguous: "
+                     f"{', '.join(flagged) or '-'}, {time.perf_counter() - t0:.1f} s")
     i1, i2 = np.concatenate(inside1), np.concatenate(inside2)
     e, s = np.concatenate(err2), np.concatenate(std2)
     unit = np.where(robot_k.prismatic_v, 1000.0, np.degrees(1.0))
