@@ -165,7 +165,7 @@ from .views import _affine_camera, _align, _camera_view, _looks_down, similarity
 from .solver import _huber, _motion_prior, _noise_sigma, _rms_per_frame, _robust_scale, _sequence_lm
 from .starts import _fit_3d, _initial_camera, _sequential_ik
 from .observability import _fill_unseen, _gauge_directions, _hold, _notes, _structural, _unseen
-from .candidates import FACE_ON_DEG, _face_on_planes, _frame_ranges, _nearest_rest_branch, _viterbi_reanchored
+from .candidates import FACE_ON_DEG, TIE_VARIANCES, _same_motion, _face_on_planes, _frame_ranges, _nearest_rest_branch, _viterbi_reanchored
 from .selection import _most_probable, _prefer_rest, view_side_valid
 from .uncertainty import assess_fit
 
@@ -424,7 +424,7 @@ def fit_joint_angles(
                 sig = max(_noise_sigma(out[2], w2), px_floor)
                 q_fix, view_fix = _viterbi_reanchored(robot, out[0], tracks, w2, out[1], free, sig, c["gauge"],
                                                       per_frame, blind, unseen2)
-                if np.abs(_wrapped(robot, q_fix - out[0])).max() < 0.05:
+                if _same_motion(robot, q_fix, out[0]):
                     break
                 new = _sequence_lm(robot, q_fix, tracks, w2, view_fix, free, np.ones(6, bool), max_iter, tol, delta)
                 worst_old = np.nanmax(_rms_per_frame(out[2], w2))
@@ -471,7 +471,7 @@ def fit_joint_angles(
             # refined fits: b is as good as a unless its squared residuals exceed a's by more than
             # 25 noise variances (a likelihood ratio test, noise estimated from a's residuals)
             var = max(a["sse"] / max(a["n_obs"], 1), (0.05 * px_floor) ** 2)
-            return b["sse"] - a["sse"] <= 25.0 * var
+            return b["sse"] - a["sse"] <= TIE_VARIANCES * var
 
         def order(rs):
             # among the fits the tracks cannot tell apart: seen from the right side first, then the
@@ -653,7 +653,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     weak_sse = float(np.nansum(weak.residual_px ** 2 * w2.sum(1)))
     distinct: list = []
     for st in starts:  # the weak fit's winner and its distinct alternatives (mirror images, flips)
-        if not any(np.abs(_wrapped(robot, st["q"] - d["q"])).max() < 0.05 for d in distinct):
+        if not any(_same_motion(robot, st["q"], d["q"]) for d in distinct):
             distinct.append(st)
     distinct = distinct[:3]
     t1 = time.perf_counter()
