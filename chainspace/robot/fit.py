@@ -159,7 +159,7 @@ import numpy as np
 
 from ..chain import KinematicChain
 from ..errors import ConvergenceWarning, DescriptionError, TrackError, is_real
-from .kinematics import RobotKinematics, _rest_distance, _roughness, _wrapped
+from .kinematics import RobotKinematics, _rest_distance, _roughness
 from .result import JointFit
 from .views import _affine_camera, _align, _camera_view, _looks_down, similarity_align
 from .solver import _huber, _motion_prior, _noise_sigma, _rms_per_frame, _robust_scale, _sequence_lm
