@@ -249,13 +249,25 @@ def _fit_summary(fit: Any) -> dict[str, Any]:
         "pinhole": getattr(fit, "camera_pose", None) is not None,
         "residual_px": stats(respx, 1.0),
         "relative_to_frame_0": [n for n, r in zip(fit.joint_names, relative, strict=False) if r],
+        "ambiguous": [n for n, a in zip(fit.joint_names, np.asarray(getattr(fit, "ambiguous", None) if
+                                                                    getattr(fit, "ambiguous", None) is not None
+                                                                    else [], bool).reshape(-1), strict=False) if a],
+        "noise_px": (float(fit.noise_px) if getattr(fit, "noise_px", None) is not None and np.isfinite(fit.noise_px)
+                     else None),
+        "q_std_median": (None if getattr(fit, "q_std", None) is None else
+                         {n: (float(np.nanmedian(c)) if np.isfinite(c).any() else None)
+                          for n, c in zip(fit.joint_names, np.asarray(fit.q_std, float).T, strict=False)}),
+        "alternatives": [{"score_noise_variances": float(a["score"]), "settled_by": a.get("settled_by")}
+                         for a in getattr(fit, "alternatives", None) or []],
         "timings_s": getattr(fit, "timings", {}) or {},
         "units": {"q": "rad (revolute) or m (prismatic); continuous joints as (cos, sin)",
                   "angles": "rad (revolute, continuous) or m (prismatic), one per joint_names; joints in "
                             "relative_to_frame_0 are seen only relative to frame 0",
                   "positions": "the reconstruction's units", "residual_3d_mm": "mm on the robot (URDF scale)",
                   "residual_3d_reconstruction_units": "the reconstruction's units (scale-free)",
-                  "residual_px": "px"},
+                  "residual_px": "px", "noise_px": "px per image coordinate",
+                  "q_std": "rad (revolute, continuous) or m (prismatic), per frame and joint; NaN where held",
+                  "alternatives": "other motions that fit as well; score in noise variances above the best"},
     }
 
 
@@ -264,7 +276,8 @@ _ARRAY_FIELDS = {
                        "converged", "n_iter", "message"),
     "joint_fit": ("q", "joint_names", "observable", "positions", "residual_3d", "residual_px", "converged",
                   "scale", "rotation", "translation", "cameras", "translations_2d", "urdf_path", "message",
-                  "n_iter", "intrinsics", "camera_pose", "focal_px", "focal_std_px"),
+                  "n_iter", "intrinsics", "camera_pose", "focal_px", "focal_std_px", "q_std", "noise_px",
+                  "alternatives", "ambiguous"),
 }
 _JSON_FIELDS = ("history", "timings")  # dicts: kept in the summary JSON inside the NPZ
 
@@ -283,6 +296,12 @@ def _arrays(obj: Any, kind: str) -> dict[str, np.ndarray]:
             continue
         if name == "camera_pose":  # (R, t): x_cam = R x_base + t
             arrays["camera_R"], arrays["camera_t"] = (np.asarray(v, float) for v in value)
+            continue
+        if name == "alternatives":  # a list of dicts: one stacked array per key
+            if value:
+                arrays["alternatives_angles"] = np.stack([np.asarray(a["angles"], float) for a in value])
+                arrays["alternatives_score"] = np.array([float(a["score"]) for a in value])
+                arrays["alternatives_settled_by"] = np.array([a.get("settled_by") or "" for a in value])
             continue
         if name == "urdf_path" and Path(value).exists():
             value = Path(value).resolve()  # so that the result opens from any working folder
@@ -383,6 +402,10 @@ def _rebuild(kind: str, data: dict[str, np.ndarray], summary: dict, chain: Any) 
     kwargs: dict[str, Any] = {}
     if "camera_R" in data:
         kwargs["camera_pose"] = (data.pop("camera_R"), data.pop("camera_t"))
+    if "alternatives_angles" in data:
+        kwargs["alternatives"] = [{"angles": a, "score": float(sc), "settled_by": str(by) or None}
+                                  for a, sc, by in zip(data.pop("alternatives_angles"), data.pop("alternatives_score"),
+                                                       data.pop("alternatives_settled_by"))]
     for f in dataclasses.fields(cls):
         if f.name in kwargs:
             continue

@@ -11,6 +11,21 @@ from .views import _View, _camera_view
 from .solver import _sequence_lm
 from .observability import _hold
 
+# The tie policy (one for every rule of chainspace.robot.fit; see "Ambiguities" there):
+# * candidate: a fitted motion, a dict with at least ``q`` (F, nq) and its ``out`` of the solver;
+# * tolerance: two candidates tie when their objectives (squared or robust residuals, plus the motion
+#   prior when smoothed) differ by at most TIE_VARIANCES noise variances (a likelihood-ratio test);
+# * de-duplication: two motions are one when no joint differs by more than DISTINCT_RAD in any frame;
+# * distance to rest: kinematics._rest_distance (summed absolute wrapped offsets from the rest pose).
+TIE_VARIANCES = 25.0
+DISTINCT_RAD = 0.05
+
+
+def _same_motion(robot: RobotKinematics, qa: np.ndarray, qb: np.ndarray) -> bool:
+    """True when motions qa and qb (F, nq or nq) are one candidate: no entry differs by more than
+    :data:`DISTINCT_RAD` (wrapped)."""
+    return bool(np.abs(_wrapped(robot, np.asarray(qa) - np.asarray(qb))).max() < DISTINCT_RAD)
+
 
 def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
                       free: np.ndarray, sigma: float, n_random: int = 4, step: float = 0.1, free_step: float = 0.15,
@@ -90,9 +105,9 @@ def _across_long_gaps(robot: RobotKinematics, q: np.ndarray, tracks: np.ndarray,
         sse = (w[b] * rn ** 2).sum(1)
         kept: list[np.ndarray] = []
         for k in np.argsort(sse):
-            if sse[k] > sse.min() + 25.0 * sigma ** 2:
+            if sse[k] > sse.min() + TIE_VARIANCES * sigma ** 2:
                 break
-            if any(np.abs(_wrapped(robot, qs[k] - o)).max() < 0.05 for o in kept + [q[b]]):
+            if any(_same_motion(robot, qs[k], o) for o in kept + [q[b]]):
                 continue
             kept.append(qs[k])
             bridged = robot.continuous(q.copy())

@@ -73,6 +73,16 @@ variances of the best: a likelihood-ratio test), applies these rules:
   straight ramp across the gap, so every branch of that frame, bridged to the last sighting by a
   straight line and smoothed, can score alike: of those that tie, the motion that moves least
   (the sum of squared joint steps) is kept.
+* *The tie policy.* All the rules above use one candidate type (a fitted motion, ``q`` with the
+  solver's output), one tolerance (objectives within ``candidates.TIE_VARIANCES`` = 25 noise
+  variances), one de-duplication (motions within ``candidates.DISTINCT_RAD`` = 0.05 rad in every
+  frame and joint are one) and one distance to rest (``kinematics._rest_distance``). The camera-side
+  rule decides only where it is valid (``selection.view_side_valid``: the robot stands above its base
+  plane; legs or a hanging limb do not). What the rules could not settle validly is reported, not
+  hidden: ``fit.alternatives`` (the tied motions, the reported motion's exact depth-flip twins
+  included) and ``fit.ambiguous`` (joints where one differs by more than
+  ``uncertainty.AMBIGUOUS_DEG`` = 5 degrees RMS); ``fit.q_std`` gives per-frame standard deviations
+  from the fit's Gauss-Newton covariance (:mod:`chainspace.robot.uncertainty`).
 * *Singularities.* Where two joint axes align (a wrist stretched straight; a 7-axis arm's upper arm
   along its first axis) only the sum of their angles is seen, and a path may continue on either
   branch. Nothing in the tracks can split them there; plan paths (and camera checks) away from them,
@@ -149,14 +159,15 @@ import numpy as np
 
 from ..chain import KinematicChain
 from ..errors import ConvergenceWarning, DescriptionError, TrackError, is_real
-from .kinematics import RobotKinematics, _rest_distance, _roughness, _wrapped
+from .kinematics import RobotKinematics, _rest_distance, _roughness
 from .result import JointFit
 from .views import _affine_camera, _align, _camera_view, _looks_down, similarity_align
 from .solver import _huber, _motion_prior, _noise_sigma, _rms_per_frame, _robust_scale, _sequence_lm
 from .starts import _fit_3d, _initial_camera, _sequential_ik
 from .observability import _fill_unseen, _gauge_directions, _hold, _notes, _structural, _unseen
-from .candidates import FACE_ON_DEG, _face_on_planes, _frame_ranges, _nearest_rest_branch, _viterbi_reanchored
-from .selection import _most_probable, _prefer_rest
+from .candidates import FACE_ON_DEG, TIE_VARIANCES, _same_motion, _face_on_planes, _frame_ranges, _nearest_rest_branch, _viterbi_reanchored
+from .selection import _most_probable, _prefer_rest, view_side_valid
+from .uncertainty import assess_fit
 
 __all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"]
 
@@ -367,6 +378,8 @@ def fit_joint_angles(
 
     # ---- step 2: refine on the tracks; both mirrors unless the 3D fit told them apart clearly
     residual_px = cams = ts2 = None
+    trust: dict = {}  # q_std, noise_px, alternatives, ambiguous (with tracks; chainspace.robot.uncertainty)
+    side_ok = True  # whether the camera-side rule applies (set with the tracks: selection.view_side_valid)
     smoothed = False  # by the acceleration prior, which also fills the frames where a direction is unseen
     converged = best["conv"]
     if refine and tracks is not None:
@@ -419,7 +432,7 @@ def fit_joint_angles(
                 sig = max(_noise_sigma(out[2], w2), px_floor)
                 q_fix, view_fix = branches(robot, out[0], tracks, w2, out[1], free, sig, c["gauge"],
                                                       per_frame, blind, unseen2)
-                if np.abs(_wrapped(robot, q_fix - out[0])).max() < 0.05:
+                if _same_motion(robot, q_fix, out[0]):
                     break
                 new = _sequence_lm(robot, q_fix, tracks, w2, view_fix, free, np.ones(6, bool), max_iter, tol, delta)
                 worst_old = np.nanmax(_rms_per_frame(out[2], w2))
@@ -446,8 +459,11 @@ def fit_joint_angles(
                         n_obs=2 * int((w2 > 0).sum()), out=out, c=c, g2=g2,
                         q=out[0], gauge=g2, down=_looks_down(out[1]), free=free, free_prior=free_prior, delta=delta)
 
+        side_ok, side_why = view_side_valid(robot)  # legs hanging below their base: the camera side decides nothing
+
         def seen_from_wrong_side(r):
-            return view_from is not None and (r["down"] < -0.02 if view_from == "above" else r["down"] > 0.02)
+            return side_ok and view_from is not None and (r["down"] < -0.02 if view_from == "above" else
+                                                          r["down"] > 0.02)
 
         # both mirror images: a poor reconstruction may favour the wrong one in 3D
         results = [refine_2d(c) for c in candidates]
@@ -463,7 +479,7 @@ def fit_joint_angles(
             # refined fits: b is as good as a unless its squared residuals exceed a's by more than
             # 25 noise variances (a likelihood ratio test, noise estimated from a's residuals)
             var = max(a["sse"] / max(a["n_obs"], 1), (0.05 * px_floor) ** 2)
-            return b["sse"] - a["sse"] <= 25.0 * var
+            return b["sse"] - a["sse"] <= TIE_VARIANCES * var
 
         def order(rs):
             # among the fits the tracks cannot tell apart: seen from the right side first, then the
@@ -519,13 +535,14 @@ def fit_joint_angles(
         r = results[0]
         timings["refine_candidates"] = time.perf_counter() - t1
         sigma = _noise_sigma(r["out"][2], w2)
+        prior, scored = None, []
         if accel_std is not None and F >= 3 and not per_frame and sigma > 1e-6:
             # joint accelerations ~ N(0, accel_std^2) against pixel noise sigma: the prior's weight
             mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
             smoothed = True
             decay_frames = np.inf if speed_decay_s is None else speed_decay_s * float(fps)
-            scored: list = []
-            r, mirror_tied, it = _most_probable(robot, results, tracks, w2, _motion_prior(unseen2, mu, decay_frames),
+            prior = _motion_prior(unseen2, mu, decay_frames)
+            r, mirror_tied, it = _most_probable(robot, results, tracks, w2, prior,
                                                 max(sigma, px_floor), max_iter, tol, seen_from_wrong_side,
                                                 reflected_start, rebranch, scored)
             n_iter += it
@@ -535,6 +552,16 @@ def fit_joint_angles(
             _starts.extend(dict(q=x["out"][0], view=x["out"][1], free=x["free"], free_prior=x["free_prior"],
                                 delta=x["delta"], gauge=x["g2"], blind=blind, px_floor=px_floor) for x in results)
         (q, view, rn, pos_base, conv2, _), best, gauge = r["out"], r["c"], r["g2"]
+        # ---- how sure: per-joint standard deviations and the motions that tie (chainspace.robot.uncertainty)
+        if smoothed:
+            tie_var = max(sigma, px_floor) ** 2
+        else:  # refined fits compared on the tracks alone (as tracks_tie does)
+            tie_var = max(r["sse"] / max(r["n_obs"], 1), (0.05 * px_floor) ** 2)
+            scored = [(x["sse"], x) for x in results]
+        t2 = time.perf_counter()
+        trust = assess_fit(robot, r, scored, tie_var, tracks, w2, prior, blind, gauge, seen_from_wrong_side,
+                           side_why if view_from is not None else "")
+        timings["uncertainty"] = time.perf_counter() - t2
         converged = conv2  # the 3D stage only started this one
         residual_px = _rms_per_frame(rn, w2)
         cams = view.matrices()
@@ -567,11 +594,13 @@ def fit_joint_angles(
                          f"degrees of face-on in frames {_frame_ranges(frames)}: there the motion can pass unseen "
                          f"to its mirror image in depth ({', '.join(turned)} differ), so the branch after those "
                          "frames is a guess; track a point off that plane (extra_frames) to settle it")
+    notes += trust.get("notes", [])
     msg = "; ".join(notes) if notes else "all joints observable"
     if mirror_tied:
         msg += ("; the motion and its mirror image fit the data equally well (weak perspective): "
                 + (f"the one seen from {view_from} the base plane is reported" if refine and tracks is not None
-                   and view_from else "the one nearer the rest pose is reported"))
+                   and view_from and side_ok else "the one nearer the rest pose is reported" if side_ok else
+                   "the camera side decides nothing here, so the reported one is a guess"))
     converged = np.broadcast_to(np.asarray(converged, bool), (F,)).copy()
     if not converged.all():
         msg = "the solver stopped before it converged; " + msg
@@ -583,6 +612,8 @@ def fit_joint_angles(
         translation=t, cameras=cams, translations_2d=ts2, chain=chain, urdf_path=urdf,
         message=msg, n_iter=int(n_iter), relative=relative,
         tracks=tracks, confidence=confidence, positions_base=pos_base, input_poses=poses, timings=timings,
+        q_std=trust.get("q_std"), noise_px=trust.get("noise_px"), alternatives=trust.get("alternatives", []),
+        ambiguous=trust.get("ambiguous", np.zeros(robot.nv, bool)),
     )
 
 
@@ -632,7 +663,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     weak_sse = float(np.nansum(weak.residual_px ** 2 * w2.sum(1)))
     distinct: list = []
     for st in starts:  # the weak fit's winner and its distinct alternatives (mirror images, flips)
-        if not any(np.abs(_wrapped(robot, st["q"] - d["q"])).max() < 0.05 for d in distinct):
+        if not any(_same_motion(robot, st["q"], d["q"]) for d in distinct):
             distinct.append(st)
     distinct = distinct[:3]
     t1 = time.perf_counter()

@@ -28,6 +28,15 @@ class JointFit:
     ``intrinsics`` (K, undistort), ``camera_pose`` (R, t) with ``x_cam = R x_base + t`` in metres;
     ``focal_px``, ``focal_std_px`` when the focal length was estimated (also when it was not
     measurable and the weak-perspective fit is reported).
+
+    How sure the fit is (fits refined on 2D tracks; :mod:`chainspace.robot.uncertainty`): ``q_std``
+    (F, nv) one standard deviation per frame and joint, radians (metres for prismatic joints), from the
+    fit's Gauss-Newton covariance scaled by the measured pixel noise ``noise_px`` (px per image
+    coordinate); NaN where a joint is held (not observable). ``alternatives``: the other motions that
+    fit the tracks as well (a likelihood-ratio test), each ``{"angles": (F, nv), "score": how much
+    worse in noise variances, "settled_by": the rule that validly set it aside or None}``.
+    ``ambiguous`` (nv,) bool: joints where an unsettled alternative differs by more than
+    :data:`~chainspace.robot.uncertainty.AMBIGUOUS_DEG` degrees RMS (reported, not trusted).
     """
 
     q: np.ndarray
@@ -56,6 +65,10 @@ class JointFit:
     camera_pose: tuple[np.ndarray, np.ndarray] | None = None  # (R (3, 3), t (3,)): x_cam = R x_base + t, metres
     focal_px: float | None = None  # estimated focal length (image_size given, no intrinsics)
     focal_std_px: float | None = None
+    q_std: np.ndarray | None = None  # (F, nv) rad / m; NaN where held
+    noise_px: float | None = None  # measured pixel noise (per coordinate) that scales q_std
+    alternatives: list[dict] = field(default_factory=list)  # {"angles" (F, nv), "score", "settled_by"}
+    ambiguous: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # (nv,)
 
     @property
     def n_frames(self) -> int:
@@ -89,6 +102,41 @@ class JointFit:
         if self.cameras is None:
             return None
         return np.einsum("fij,fkj->fki", self.cameras, self.positions_base) + self.translations_2d[:, None]
+
+    def joint_status(self) -> list[str]:
+        """Per joint (``joint_names``): "observable", "relative to frame 0", "not observable" or
+        "ambiguous" (an alternative motion that fits as well differs there: see ``alternatives``)."""
+        n = len(self.joint_names)
+        amb = np.asarray(self.ambiguous, bool) if np.size(self.ambiguous) == n else np.zeros(n, bool)
+        obs = np.asarray(self.observable, bool).reshape(-1)
+        rel = np.asarray(self.relative, bool) if np.size(self.relative) == n else np.zeros(n, bool)
+        if obs.size != n:  # a fit saved with one flag per q entry
+            obs = np.ones(n, bool)
+        return ["ambiguous" if a else "observable" if o else "relative to frame 0" if r else "not observable"
+                for a, o, r in zip(amb, obs, rel)]
+
+    def summary(self) -> str:
+        """Plain text, one line per joint: its status and median standard deviation (degrees, mm for
+        prismatic joints), then the measured pixel noise, the alternatives and the fit's message."""
+        lines = []
+        std = None if self.q_std is None else np.asarray(self.q_std, float)
+        prismatic = (self.kinematics().prismatic_v if std is not None and self.urdf_path
+                     else np.zeros(len(self.joint_names), bool))
+        for k, (name, status) in enumerate(zip(self.joint_names, self.joint_status())):
+            sd = ""
+            if std is not None and np.isfinite(std[:, k]).any():
+                unit, scale = ("mm", 1000.0) if prismatic[k] else ("deg", np.degrees(1.0))
+                sd = f", std {scale * float(np.nanmedian(std[:, k])):.2f} {unit} (median over frames)"
+            lines.append(f"{name}: {status}{sd}")
+        if self.noise_px is not None and np.isfinite(self.noise_px):
+            lines.append(f"measured pixel noise: {self.noise_px:.2f} px")
+        if self.alternatives:
+            lines.append(f"{len(self.alternatives)} other motion(s) fit the tracks as well: "
+                         + ", ".join(f"{a['score']:.1f} noise variances worse"
+                                     + (f" (set aside by the {a['settled_by']} rule)" if a.get("settled_by") else "")
+                                     for a in self.alternatives))
+        lines.append(self.message)
+        return "\n".join(lines)
 
     def __repr__(self) -> str:
         obs = int(self.observable.sum())

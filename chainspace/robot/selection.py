@@ -7,10 +7,26 @@ from __future__ import annotations
 from collections.abc import Callable
 import numpy as np
 
-from .kinematics import RobotKinematics, _roughness, _wrapped
+from .kinematics import RobotKinematics, _roughness
 from .views import _View, _looks_down
 from .solver import _smooth_lm, _smoothed_objective
-from .candidates import _LONG_GAP, _across_long_gaps, _turned_views
+from .candidates import TIE_VARIANCES, _LONG_GAP, _across_long_gaps, _same_motion, _turned_views
+
+
+def view_side_valid(robot: RobotKinematics) -> tuple[bool, str]:
+    """Whether the camera-side rule (``view_from``) may settle a mirror tie for this robot, and why not.
+
+    The rule assumes an arm standing on a fixed base, filmed by a camera on its side of the base plane
+    (above the floor). It is valid when the tracked points at rest lie above the base plane on
+    average (z > 0 in the base frame): an arm on a floor, or on a ceiling with its base frame turned
+    over. Legs hanging below their trunk (a quadruped fitted as a fixed-base tree, a humanoid's arm
+    from its shoulder) break it: the mirror images are then left to a guess and reported as such."""
+    pos = robot.positions(robot.q_rest)[0]
+    above = float(np.mean(pos[:, 2]))
+    if above > 0.05 * robot.reach():
+        return True, ""
+    return False, (f"the tracked points hang below the base plane at rest (mean height {1000 * above:.0f} mm): "
+                   "legs or a hanging limb, where the camera-side rule (view_from) does not apply")
 
 
 def _prefer_rest(robot: RobotKinematics, cands: list[dict], key: str, blind: np.ndarray,
@@ -74,7 +90,7 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
         objective, out = smoothed(r, q, view)
         for _ in range(2):  # the smoothed motion may still jump branches that a local step cannot undo
             q_b, view_b = rebranch(r, out)
-            if np.abs(_wrapped(robot, q_b - out[0])).max() < 0.05:
+            if _same_motion(robot, q_b, out[0]):
                 break
             objective_b, out_b = smoothed(r, q_b, view_b)
             if objective_b >= (1 - 1e-3) * objective:
@@ -84,10 +100,10 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
             scored.append((objective, dict(r, out=out, q=out[0], down=_looks_down(out[1]))))
 
     def known(q):
-        return any(np.abs(_wrapped(robot, q - o["q"])).max() < 0.05 for _, o in scored)
+        return any(_same_motion(robot, q, o["q"]) for _, o in scored)
 
     for r in results:
-        near = r["sse"] <= 1.1 * best_sse + 25.0 * sigma ** 2
+        near = r["sse"] <= 1.1 * best_sse + TIE_VARIANCES * sigma ** 2
         if near and not known(r["q"]):
             score(r, r["out"][0], r["out"][1])  # else a poor fit of the tracks, or one already scored
     best, r = min(scored, key=lambda sr: sr[0])
@@ -100,7 +116,7 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
     for q_b in _across_long_gaps(robot, r["q"], tracks, w, r["out"][1], r["free"], sigma, _LONG_GAP):
         objective, out = smoothed(r, q_b, r["out"][1])
         moved = _roughness(robot, out[0])
-        if objective <= best + 25.0 * sigma ** 2 and moved < least[0]:
+        if objective <= best + TIE_VARIANCES * sigma ** 2 and moved < least[0]:
             least = (moved, objective, dict(r, out=out, q=out[0], down=_looks_down(out[1])))
     if least[2] is not r:
         scored = [sr for sr in scored if sr[1] is not r] + [least[1:]]
@@ -109,7 +125,7 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
         start = reflected(r)
         score(start, start["q"], start["view"])
     lowest = min(sr[0] for sr in scored)
-    tied = [r for sr, r in scored if sr - lowest <= 25.0 * sigma ** 2]
+    tied = [r for sr, r in scored if sr - lowest <= TIE_VARIANCES * sigma ** 2]
     if scored_out is not None:
         scored_out.extend(scored)
     return min(tied, key=lambda r: (wrong_side(r), _roughness(robot, r["q"]))), len(tied) > 1, n_iter

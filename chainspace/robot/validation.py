@@ -7,7 +7,11 @@ robot. The report passes or fails against thresholds the user sets.
 
 Angles are compared wrapped into [-180, 180) degrees for revolute joints (q and q + 360 degrees are one
 pose). Joints the fit marks as seen only relative to the first frame are compared after removing
-their mean offset; unobservable joints are listed but not judged.
+their mean offset; unobservable joints are listed but not judged. Joints the fit marks ambiguous
+(another motion fits the tracks as well and differs there, ``fit.alternatives``) are listed with
+their error but not judged: the fit said it does not know. With the fit's standard deviations
+(``fit.q_std``) each row also gives the median reported standard deviation and, with a truth, the
+share of frames whose error lies within one of them (about 68 % when the deviations are honest).
 """
 
 from __future__ import annotations
@@ -88,13 +92,17 @@ class ValidationReport:
 
     def table(self) -> str:
         """The report as markdown: a joint table, a bone table and the checks."""
-        out = ["| joint | status | RMS error | max error |", "|---|---|---|---|"]
+        out = ["| joint | status | RMS error | max error | reported std (median) | within 1 std |",
+               "|---|---|---|---|---|---|"]
         for j in self.joints:
             unit = j.get("unit", "deg")
+            sd = "-" if j.get("std_median") is None else f"{j['std_median']:.3f} {unit}"
+            inside = "-" if j.get("within_1_std_pct") is None else f"{j['within_1_std_pct']:.0f} %"
             if j["rms"] is None:
-                out.append(f"| {j['name']} | {j['status']} | - | - |")
+                out.append(f"| {j['name']} | {j['status']} | - | - | {sd} | {inside} |")
             else:
-                out.append(f"| {j['name']} | {j['status']} | {j['rms']:.3f} {unit} | {j['max']:.3f} {unit} |")
+                out.append(f"| {j['name']} | {j['status']} | {j['rms']:.3f} {unit} | {j['max']:.3f} {unit} | {sd} | "
+                           f"{inside} |")
         out += ["", BONES_NOTE, "",
                 "| bone | fitted robot (URDF) m | robot share % | reconstruction share % (scale-free) "
                 "| share difference % |", "|---|---|---|---|---|"]
@@ -105,6 +113,10 @@ class ValidationReport:
             out.append(f"| {b['name']} | {b['urdf_mm'] / 1000:.4f} | {rob} | {rec} | {diff} |")
         out.append("")
         rel = [j["name"] for j in self.joints if j.get("status") == "relative to frame 0"]
+        amb = [j for j in self.joints if j.get("status") == "ambiguous"]
+        if amb:
+            out.append(f"- {', '.join(j['name'] for j in amb)}: ambiguous (other motions fit the tracks as well and "
+                       "differ there; listed, not judged): " + "; ".join(j.get("reason", "") for j in amb[:1]))
         if rel:
             out.append(f"- {', '.join(rel)}: seen only relative to frame 0 (a turn of the camera looks the same), "
                        "so compared, and plotted, as the change since frame 0")
@@ -213,6 +225,13 @@ def _joint_errors(robot, fit, q, tq) -> list[dict[str, Any]]:
     names = list(fit.joint_names) if len(fit.joint_names) == robot.nv else list(robot.joint_names)
     relative = np.asarray(getattr(fit, "relative", np.zeros(len(names), bool)), bool)
     observable = np.asarray(fit.observable, bool)
+    ambiguous = np.asarray(getattr(fit, "ambiguous", None) if getattr(fit, "ambiguous", None) is not None
+                           else np.zeros(0, bool), bool)
+    ambiguous = ambiguous if ambiguous.shape == (len(names),) else np.zeros(len(names), bool)
+    std = getattr(fit, "q_std", None)
+    std = np.asarray(std, float) if std is not None and np.shape(std) == (len(q), len(names)) else None
+    amb_reason = next((m.strip() for m in str(getattr(fit, "message", "")).split("; ") if m.startswith("ambiguous")),
+                      "")
     if observable.size != robot.nv:  # a fit saved with one flag per q entry: flags of each joint's first entry
         first = [int(np.flatnonzero(robot._qv[:, v])[0]) for v in range(robot.nv)]
         observable = observable[first]
@@ -220,15 +239,26 @@ def _joint_errors(robot, fit, q, tq) -> list[dict[str, Any]]:
     for k, name in enumerate(names):
         obs, rel = bool(observable[k]), bool(relative[k]) if relative.size else False
         status = "observable" if obs else ("relative to frame 0" if rel else "not observable")
-        row: dict[str, Any] = {"name": name, "status": status, "judged": obs or rel, "rms": None, "max": None,
-                               "unit": "mm" if robot.prismatic_v[k] else "deg"}
-        if ta is not None and (obs or rel):
+        if ambiguous[k]:
+            status = "ambiguous"
+        row: dict[str, Any] = {"name": name, "status": status, "judged": (obs or rel) and not ambiguous[k],
+                               "rms": None, "max": None, "unit": "mm" if robot.prismatic_v[k] else "deg"}
+        scale = np.degrees(1.0) if row["unit"] == "deg" else 1000.0
+        if ambiguous[k]:
+            row["reason"] = amb_reason
+        if std is not None and np.isfinite(std[:, k]).any():
+            row["std_median"] = float(np.nanmedian(std[:, k]) * scale)
+        if ta is not None and (obs or rel or ambiguous[k]):
             d = a[:, k] - ta[:, k]
             if robot.turns_v[k]:
                 d = _wrap(d)
+            if std is not None and np.isfinite(std[:, k]).any():
+                # against the deviations as reported: a relative joint's are of its change since frame 0
+                d0 = (_wrap(d - d[0]) if robot.turns_v[k] else d - d[0]) if rel else d
+                ok = np.isfinite(std[:, k]) & (std[:, k] > 0)
+                row["within_1_std_pct"] = float(100 * np.mean(np.abs(d0[ok]) <= std[ok, k])) if ok.any() else None
             if rel:  # seen only up to a constant: compare after removing the mean offset
                 d = _wrap(d - np.angle(np.mean(np.exp(1j * d)))) if robot.turns_v[k] else d - d.mean()
-            scale = np.degrees(1.0) if row["unit"] == "deg" else 1000.0
             row["rms"] = float(np.sqrt(np.mean(d ** 2)) * scale)
             row["max"] = float(np.abs(d).max() * scale)
         out.append(row)

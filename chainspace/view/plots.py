@@ -93,7 +93,9 @@ def plot_joint_angles(fit: Any, truth_q: Any, path: str | os.PathLike, *, fps: f
     or (F, nq) in Pinocchio's layout, or None. Joints the fit marks not observable are drawn dashed.
     Joints it marks seen only relative to the first frame (``fit.relative``) are drawn, fitted and
     truth alike, as their change since frame 0, and labelled "relative to frame 0". ``joints`` picks a
-    subset by name.
+    subset by name. A fit that carries standard deviations (``fit.q_std``) is drawn with a band of +-1
+    standard deviation; its alternatives (other motions that fit the tracks as well, ``fit.alternatives``)
+    as thin grey lines, and a joint they leave ambiguous (``fit.ambiguous``) is labelled so.
     """
     check_writable([path], overwrite)
     q = np.asarray(getattr(fit, "angles", fit.q), dtype=float)  # one angle per joint (continuous: radians)
@@ -110,6 +112,13 @@ def plot_joint_angles(fit: Any, truth_q: Any, path: str | os.PathLike, *, fps: f
     relative = np.asarray(getattr(fit, "relative", None) if getattr(fit, "relative", None) is not None
                           else np.zeros(0, bool), dtype=bool)
     relative = relative if relative.shape == (len(names),) else np.zeros(len(names), bool)
+    std = getattr(fit, "q_std", None)
+    std = np.asarray(std, float) if std is not None and np.shape(std) == q.shape else None
+    alternatives = [np.asarray(a["angles"], float) for a in getattr(fit, "alternatives", None) or []
+                    if np.shape(a.get("angles")) == q.shape]
+    ambiguous = np.asarray(getattr(fit, "ambiguous", None) if getattr(fit, "ambiguous", None) is not None
+                           else np.zeros(0, bool), dtype=bool)
+    ambiguous = ambiguous if ambiguous.shape == (len(names),) else np.zeros(len(names), bool)
     ncols = 2 if len(pick) > 3 else 1
     nrows = math.ceil(len(pick) / ncols)
     fig, axes = _figure(nrows, ncols, figsize=(6.4 * ncols / 1.3, 1.9 * nrows + 0.6), sharex=True)
@@ -121,9 +130,15 @@ def plot_joint_angles(fit: Any, truth_q: Any, path: str | os.PathLike, *, fps: f
         tag = " (relative to frame 0)" if rel else ""
         if truth is not None:
             ax.plot(t, np.degrees(since(truth[:, i])), color="0.2", lw=1.2, label="truth" + tag)
-        ax.plot(t, np.degrees(since(q[:, i])), color="C1", lw=1.2, ls="-" if observable[i] else "--",
-                label="fitted" + tag)
-        ax.set_ylabel(f"{names[i]} (deg)" if not rel else f"{names[i]} (deg,\nrelative to frame 0)")
+        for n_alt, a in enumerate(alternatives):
+            ax.plot(t, np.degrees(since(a[:, i])), color="0.6", lw=0.8, label=None if n_alt else "alternative")
+        fitted = np.degrees(since(q[:, i]))
+        if std is not None and np.isfinite(std[:, i]).any():
+            band = np.degrees(std[:, i])
+            ax.fill_between(t, fitted - band, fitted + band, color="C1", alpha=0.25, lw=0, label="+-1 std")
+        ax.plot(t, fitted, color="C1", lw=1.2, ls="-" if observable[i] else "--", label="fitted" + tag)
+        label = f"{names[i]} (deg)" if not rel else f"{names[i]} (deg,\nrelative to frame 0)"
+        ax.set_ylabel(label + ("\nAMBIGUOUS" if ambiguous[i] else ""))
         if rel:
             ax.legend(loc="best", fontsize="small")
         ax.grid(True, alpha=0.3)

@@ -450,6 +450,18 @@ def _frame_camera(vis: Any, points: np.ndarray) -> None:
 
 
 # ---------------------------------------------------------------------------------------- entry points
+def _with_summary(html: str, fit: Any) -> str:
+    """The page with the fit's per-joint status and standard deviations (:meth:`JointFit.summary`) in
+    a corner: how sure the fit is, where the animation cannot say it."""
+    import html as html_lib
+
+    text = html_lib.escape(fit.summary())
+    box = ('<pre id="chainspace-fit-summary" style="position:fixed;left:8px;bottom:8px;margin:0;padding:6px;'
+           'max-width:60%;max-height:40%;overflow:auto;background:rgba(255,255,255,0.85);font:11px monospace;'
+           f'z-index:10;white-space:pre-wrap">{text}</pre>')
+    return html.replace("</body>", box + "</body>", 1) if "</body>" in html else html + box
+
+
 def write_html(path: str | os.PathLike, rec_or_poses: Any = None, *, chain: Any = None, truth: Any = None,
                fit: Any = None, fps: float = 30.0, overwrite: bool = False, camera: Any = None,
                camera_pose: Any = None) -> Path:
@@ -465,6 +477,9 @@ def write_html(path: str | os.PathLike, rec_or_poses: Any = None, *, chain: Any 
     build_scene(vis, rec_or_poses, chain=chain, truth=truth, fit=fit, fps=fps, camera=camera,
                 camera_pose=camera_pose)
     html = vis.static_html()
+    shown_fit = fit if fit is not None else rec_or_poses
+    if hasattr(shown_fit, "summary") and hasattr(shown_fit, "joint_status"):
+        html = _with_summary(html, shown_fit)
     with atomic_write(path, "w", overwrite) as f:
         f.write(html)
     return Path(path)

@@ -1,0 +1,234 @@
+"""How well the tracks pin each joint down: per-frame, per-joint standard deviations of a fit.
+
+The refinement minimises ``sum w |r|^2 + q' M q`` (robust residuals r in pixels with IRLS weights w,
+the motion prior M of :func:`chainspace.robot.solver._motion_prior`). Read as a negative log
+posterior with pixel noise sigma, its Gauss-Newton covariance at the solution is
+
+    Cov = sigma^2 H^-1,   H = [[J_q' W J_q + M, J_q' W J_c], [J_c' W J_q, J_c' W J_c]]
+
+with q the joint angles of every frame and c the static camera. Only the per-frame diagonal blocks of
+the q part are needed. The camera is eliminated by a Schur complement, and the joint-angle block,
+banded (the acceleration prior couples a frame to the two either side), is block-tridiagonal in
+*pairs* of frames; the diagonal blocks of its inverse follow from one forward and one backward
+recursion (``inv(L_k + R_k - A_k)``, L and R the Schur complements from either end), so the cost is
+linear in the number of frames.
+
+sigma is measured from the fit's own residuals: the robust (median) estimate of
+:func:`chainspace.robot.solver._noise_sigma`, corrected for the degrees of freedom the fit used
+(``n_obs / (n_obs - p_eff)``, ``p_eff = trace(H^-1 H_data)``; the residuals of a fit are smaller than
+the noise by the share of it the fitted parameters absorbed).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .kinematics import RobotKinematics
+from .solver import _huber, _noise_sigma, _normal_equations
+
+
+def _block_tridiagonal_inverse_diagonal(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Diagonal blocks (n, b, b) of the inverse of the symmetric positive definite block-tridiagonal
+    matrix with diagonal blocks A (n, b, b) and super-diagonal blocks B (n - 1, b, b)."""
+    n = len(A)
+    L, R = A.copy(), A.copy()
+    for k in range(1, n):  # Schur complements from the first block on ...
+        L[k] = A[k] - B[k - 1].T @ np.linalg.solve(L[k - 1], B[k - 1])
+    for k in range(n - 2, -1, -1):  # ... and from the last one back
+        R[k] = A[k] - B[k] @ np.linalg.solve(R[k + 1], B[k].T)
+    return np.linalg.inv(L + R - A)
+
+
+def _pair_blocks(H, F: int, nv: int) -> tuple[np.ndarray, np.ndarray]:
+    """H (F nv, F nv) sparse, bandwidth two frames, as blocks of two frames each (the last padded with
+    an identity when F is odd): diagonal (n, 2 nv, 2 nv) and super-diagonal (n - 1, 2 nv, 2 nv)."""
+    import scipy.sparse as sp
+
+    b = 2 * nv
+    n = (F + 1) // 2
+    pad = n * b - F * nv
+    Hp = sp.block_diag([H, sp.eye(pad)]).tocsr() if pad else H.tocsr()
+    A = np.stack([Hp[k * b:(k + 1) * b, k * b:(k + 1) * b].toarray() for k in range(n)])
+    B = np.stack([Hp[k * b:(k + 1) * b, (k + 1) * b:(k + 2) * b].toarray() for k in range(n - 1)]) if n > 1 \
+        else np.zeros((0, b, b))
+    return A, B
+
+
+def joint_std(robot: RobotKinematics, q: np.ndarray, tracks: np.ndarray, w: np.ndarray, view, free: np.ndarray,
+              delta: float | None, prior=None) -> tuple[np.ndarray, float]:
+    """Standard deviations (F, nv) of the fitted joint angles q (F, nq) (radians; metres for prismatic
+    joints) and the measured pixel noise sigma (px, per image coordinate).
+
+    tracks (F, J, D) and weights w (F, J) as fitted; ``view`` the fitted camera(s) (one static view, or
+    one per frame); free (F, nv) the directions the fit moved (others are held: their entries are NaN,
+    and the caller sets those fixed by convention); delta the Huber threshold; prior the motion prior's
+    sparse matrix (None: the frames are independent).
+    """
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+
+    F, J, D = tracks.shape
+    nv = robot.nv
+    pos, jac = robot.jacobians(q)
+    pred, y = view.apply(pos)
+    rn = np.linalg.norm(pred - np.nan_to_num(tracks), axis=-1)
+    ww = w * _huber(rn, delta)[1]
+    free_view = np.ones(view.n_params, bool)
+    Hqq, Hqc, _, Hcc, _ = _normal_equations(view, jac, y, pred - np.nan_to_num(tracks), ww, free, free_view)
+    fr = free.reshape(-1).astype(float)
+    # a held direction: an identity row and column, cut from the rest (its variance is not reported)
+    held = np.einsum("fv,vu->fvu", 1.0 - free, np.eye(nv))
+    data_q = Hqq
+    Hqq = Hqq + held
+    nc = view.n_params
+    if view.per_frame:  # one camera per frame, no prior: every frame on its own
+        top = np.concatenate([Hqq, Hqc], 2)
+        bottom = np.concatenate([Hqc.transpose(0, 2, 1), Hcc], 2)
+        Hf = np.concatenate([top, bottom], 1)
+        cov = np.linalg.pinv(Hf, hermitian=True)
+        var = np.einsum("fvv->fv", cov[:, :nv, :nv])
+        p_eff = float(np.einsum("fij,fji->", cov, Hf - np.pad(held, ((0, 0), (0, nc), (0, nc)))))
+    else:
+        Hdata = sp.block_diag(list(Hqq), format="csr")
+        M = sp.csr_matrix((F * nv, F * nv)) if prior is None else sp.diags(fr) @ prior @ sp.diags(fr)
+        A = (Hdata + M).tocsc()
+        lu = splu(A)
+        X = lu.solve(Hqc.reshape(F * nv, nc))  # A^-1 H_qc
+        S = Hcc[0] - Hqc.reshape(F * nv, nc).T @ X + 1e-12 * np.eye(nc) * np.trace(Hcc[0])
+        S_inv = np.linalg.inv(S)
+        Ad, Bd = _pair_blocks(A, F, nv)
+        inv_pairs = _block_tridiagonal_inverse_diagonal(Ad, Bd)
+        # per-frame diagonal blocks of A^-1, then the camera's share: (A^-1 Hqc) S^-1 (A^-1 Hqc)'
+        blocks = np.concatenate([inv_pairs[:, :nv, :nv][:, None], inv_pairs[:, nv:, nv:][:, None]], 1)
+        blocks = blocks.reshape(-1, nv, nv)[:F]
+        Xf = X.reshape(F, nv, nc)
+        cov_qq = blocks + Xf @ S_inv @ Xf.transpose(0, 2, 1)
+        var = np.einsum("fvv->fv", cov_qq)
+        # p_eff = trace(H^-1 H_data): q blocks, the q-camera coupling twice, the camera block
+        cov_qc = -X @ S_inv
+        p_eff = float(np.einsum("fij,fji->", cov_qq, data_q)) + 2.0 * float(np.sum(cov_qc * Hqc.reshape(F * nv, nc))) \
+            + float(np.trace(S_inv @ Hcc[0]))
+    n_obs = D * int((w > 0).sum())
+    sigma = _noise_sigma(rn, w) * np.sqrt(n_obs / max(n_obs - p_eff, 1.0))
+    std = sigma * np.sqrt(np.maximum(var, 0.0))
+    return np.where(free, std, np.nan), float(sigma)
+
+
+AMBIGUOUS_DEG = 5.0  # a joint whose unsettled alternatives differ from the reported motion by more (RMS) is ambiguous
+
+
+def alternatives_of(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict]], sigma: float,
+                    settled) -> list[dict]:
+    """The other motions that fit the tracks as well as the reported one (``winner``): of ``scored``
+    ((objective, fit) pairs, fits with ``q``), those within the tie tolerance of the lowest objective
+    (:data:`chainspace.robot.candidates.TIE_VARIANCES` noise variances ``sigma^2``: a likelihood-ratio
+    test), distinct from the winner and from each other (:func:`chainspace.robot.candidates._same_motion`).
+
+    Each is ``{"angles": (F, nv), "score": objective above the lowest in noise variances (0: an exact
+    tie), "settled_by": the rule that validly set it aside (``settled(fit)``, e.g. the camera side), or
+    None when only a guess did}``, best score first."""
+    from .candidates import TIE_VARIANCES, _same_motion
+
+    if not scored:
+        return []
+    lowest = min(s for s, _ in scored)
+    var = max(sigma, 1e-12) ** 2
+    out: list[dict] = []
+    seen = [winner["q"]]
+    for s, r in sorted(scored, key=lambda sr: sr[0]):
+        if r is winner or s - lowest > TIE_VARIANCES * var or any(_same_motion(robot, r["q"], o) for o in seen):
+            continue
+        seen.append(r["q"])
+        out.append({"angles": robot.angles(r["q"]), "score": float((s - lowest) / var), "settled_by": settled(r)})
+    return out
+
+
+def ambiguous_joints(robot: RobotKinematics, angles: np.ndarray, alternatives: list[dict],
+                     judged: np.ndarray, relative: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(nv,) joints whose unsettled alternatives differ from ``angles`` (F, nv) by more than
+    :data:`AMBIGUOUS_DEG` RMS over the frames (wrapped for turning joints; prismatic joints: that
+    many millimetres), among ``judged`` (nv,), joints seen ``relative`` (nv,) to frame 0 compared as their
+    change since frame 0; and the largest such RMS
+    difference per joint (degrees, or mm for prismatic joints; 0 without alternatives)."""
+    worst = np.zeros(robot.nv)
+    for alt in alternatives:
+        if alt["settled_by"]:
+            continue
+        d = alt["angles"] - angles
+        if relative is not None:
+            d = d - np.where(relative, d[:1], 0.0)
+        d = np.where(robot.turns_v, (d + np.pi) % (2 * np.pi) - np.pi, d)
+        rms = np.sqrt(np.mean(d ** 2, axis=0)) * np.where(robot.prismatic_v, 1000.0, np.degrees(1.0))
+        worst = np.maximum(worst, rms)
+    return (worst > AMBIGUOUS_DEG) & judged, worst
+
+
+def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict]], var: float,
+               tracks: np.ndarray, w: np.ndarray, prior, blind: np.ndarray, gauge: np.ndarray, wrong_side,
+               side_why: str) -> dict:
+    """What the fit knows and does not: ``q_std`` (F, nv) (NaN where a joint is held: not observable,
+    or unseen without the motion prior; 0 for a joint seen relative to frame 0, in frame 0),
+    ``noise_px`` (the measured pixel noise), ``alternatives`` (:func:`alternatives_of`; ``scored``
+    holds (objective, fit) pairs, objectives in units where a noise variance is ``var``), ``ambiguous``
+    (nv,), ``ambiguity_deg`` (nv,) and ``notes`` (sentences for the fit's message).
+
+    ``winner``: the reported fit (``out``, ``q``, ``free``/``free_prior``, ``delta``); ``prior``: the
+    motion prior it was smoothed with, or None; ``wrong_side(fit)``: the camera-side rule, True where
+    it validly sets a fit aside; ``side_why``: why that rule does not apply here ("" when it does)."""
+    q, view = winner["out"][0], winner["out"][1]
+    rel = gauge & ~blind
+    free = (winner["free_prior"] if prior is not None else winner["free"]).copy()
+    free[0, rel] = False  # a turn of the camera imitates these: reported relative to frame 0, held there
+    try:
+        std, noise = joint_std(robot, q, tracks, w, view, free, winner["delta"], prior)
+    except (np.linalg.LinAlgError, RuntimeError, ValueError):  # a singular system: nothing to say
+        std, noise = np.full((len(q), robot.nv), np.nan), float("nan")
+    std[0, rel] = 0.0  # by definition: the joint is reported as its change since frame 0
+    std[:, blind] = np.nan
+    sigma = float(np.sqrt(var))
+    scored = list(scored) + _exact_flips(robot, winner, scored, tracks, w, prior, free)
+    alts = alternatives_of(robot, winner, scored, sigma, lambda x: "camera side" if "down" in x and wrong_side(x) else None)
+    ambiguous, worst = ambiguous_joints(robot, robot.angles(q), alts, ~blind, rel)
+    notes = []
+    if ambiguous.any():
+        names = [f"{robot.joint_names[k]} ({worst[k]:.0f} {'mm' if robot.prismatic_v[k] else 'deg'} RMS)"
+                 for k in np.flatnonzero(ambiguous)]
+        notes.append(f"ambiguous: {', '.join(names)}: {len(alts)} other motion(s) fit the tracks as well "
+                     f"(within {_tie_variances():g} noise variances) and differ there by more than "
+                     f"{AMBIGUOUS_DEG:g} degrees RMS; the reported one is a guess (fit.alternatives)"
+                     + (f"; {side_why}" if side_why else ""))
+    return dict(q_std=std, noise_px=noise, alternatives=alts, ambiguous=ambiguous, ambiguity_deg=worst, notes=notes)
+
+
+def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict]], tracks: np.ndarray,
+                 w: np.ndarray, prior, free: np.ndarray) -> list[tuple[float, dict]]:
+    """The winner's exact twins, scored as ``scored`` is: per link, the motion with that link and
+    everything beyond it mirrored in depth (and the joints from each one on started from the other side
+    of the rest pose), fitted to the winner's points frame by frame
+    (:func:`chainspace.robot.candidates._depth_flips`). Where such a motion puts the tracked points
+    where the winner does, only the rest-pose rule chose between them (a planar wrist or leg mirrored
+    in depth): it is an alternative. Scored unsmoothed against the winner's objective (the same robust
+    loss, plus the motion prior when there is one), so a tie found here is a tie."""
+    from .candidates import _depth_flips
+    from .solver import _smoothed_objective
+
+    q, view, delta = winner["out"][0], winner["out"][1], winner["delta"]
+    if getattr(view, "per_frame", False) and prior is not None:
+        return []
+
+    def objective(qa):
+        pred = view.apply(robot.positions(qa))[0]
+        rn = np.linalg.norm(pred - np.nan_to_num(tracks), axis=-1)
+        if prior is None:
+            return float((w * rn ** 2).sum())
+        return _smoothed_objective(prior, robot.angles(qa), rn, w, delta)
+
+    base = next((s for s, x in scored if x is winner), min((s for s, _ in scored), default=0.0))
+    own = objective(q)
+    return [(base + objective(q_m) - own, {"q": q_m}) for q_m in _depth_flips(robot, q, view, free)]
+
+
+def _tie_variances() -> float:
+    from .candidates import TIE_VARIANCES
+
+    return TIE_VARIANCES

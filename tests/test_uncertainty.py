@@ -1,0 +1,138 @@
+"""Issue 21, parts 1-2: the fit says how sure it is (per-joint standard deviations, the motions that tie,
+ambiguous joints) and where its camera-side rule does not apply."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from chainspace.io.urdf import from_urdf
+from chainspace.robot.kinematics import RobotKinematics
+from chainspace.robot.observability import _unseen
+from chainspace.robot.selection import view_side_valid
+from chainspace.robot.solver import _motion_prior, _normal_equations
+from chainspace.robot.uncertainty import _block_tridiagonal_inverse_diagonal, ambiguous_joints, joint_std
+from chainspace.robot.views import _camera_view
+from chainspace.synthetic.robot import synthesize
+
+ROBOTS = __import__("pathlib").Path(__file__).resolve().parents[1] / "robots"
+
+
+@pytest.fixture(scope="module")
+def arm():
+    chain = from_urdf(ROBOTS / "milling_arm.urdf")
+    return chain, RobotKinematics(chain.metadata["urdf_path"], chain)
+
+
+def test_block_tridiagonal_recursion_gives_the_diagonal_blocks_of_the_inverse():
+    rng = np.random.default_rng(0)
+    n, b = 5, 3
+    G = rng.normal(size=(n * b, n * b))
+    band = np.abs(np.subtract.outer(np.arange(n * b) // b, np.arange(n * b) // b)) <= 1
+    H = (G @ G.T) * band + n * b * np.eye(n * b)  # SPD and block-tridiagonal
+    A = np.stack([H[k * b:(k + 1) * b, k * b:(k + 1) * b] for k in range(n)])
+    B = np.stack([H[k * b:(k + 1) * b, (k + 1) * b:(k + 2) * b] for k in range(n - 1)])
+    inv = np.linalg.inv(H)
+    want = np.stack([inv[k * b:(k + 1) * b, k * b:(k + 1) * b] for k in range(n)])
+    assert np.allclose(_block_tridiagonal_inverse_diagonal(A, B), want, atol=1e-12)
+
+
+def test_joint_std_is_the_dense_gauss_newton_covariance_with_camera_and_prior(arm):
+    chain, robot = arm
+    trial = synthesize(chain, n_frames=7, noise_px=1.0, seed=2)
+    w = np.ones(trial.tracks.shape[:2])
+    view = _camera_view(trial.positions, trial.tracks, w, False)
+    free = np.ones((7, robot.nv), bool)
+    free[0, 0] = False  # a held direction (the first joint in frame 0, as for a relative joint)
+    prior = _motion_prior(_unseen(robot, w), 50.0, np.inf)
+    std, sigma = joint_std(robot, trial.q, trial.tracks, w, view, free, None, prior)
+    # the same matrix, assembled densely and inverted
+    pos, jac = robot.jacobians(trial.q)
+    pred, y = view.apply(pos)
+    Hqq, Hqc, _, Hcc, _ = _normal_equations(view, jac, y, pred - trial.tracks, w, free, np.ones(view.n_params, bool))
+    N, nc = 7 * robot.nv, view.n_params
+    fr = free.reshape(-1).astype(float)
+    H = np.zeros((N + nc, N + nc))
+    for f in range(7):
+        H[f * robot.nv:(f + 1) * robot.nv, f * robot.nv:(f + 1) * robot.nv] = Hqq[f]
+    H[:N, :N] += fr[:, None] * prior.toarray() * fr[None] + np.diag(1 - fr)
+    H[:N, N:] = Hqc.reshape(N, nc)
+    H[N:, :N] = H[:N, N:].T
+    H[N:, N:] = Hcc[0]
+    var = np.diag(np.linalg.inv(H))[:N].reshape(7, robot.nv)
+    assert np.isnan(std[0, 0]) and np.isfinite(std[free]).all()
+    assert np.allclose((std / sigma)[free], np.sqrt(var[free]), rtol=1e-4)
+
+
+def test_an_alternative_that_differs_makes_its_joints_ambiguous(arm):
+    chain, robot = arm
+    a = np.zeros((10, robot.nv))
+    alt = a.copy()
+    alt[:, 3] += np.pi  # a wrist turned half a turn
+    alt[:, 4] += np.radians(2)  # within the threshold
+    settled = dict(angles=a + 1.0, score=0.0, settled_by="camera side")
+    amb, worst = ambiguous_joints(robot, a, [dict(angles=alt, score=0.0, settled_by=None), settled],
+                                  np.ones(robot.nv, bool))
+    assert amb.tolist() == [False, False, False, True, False, False]
+    assert worst[4] == pytest.approx(2.0)
+
+
+def test_the_camera_side_rule_holds_for_an_arm_on_a_floor_not_for_a_hanging_leg(arm, tmp_path):
+    chain, robot = arm
+    assert view_side_valid(robot)[0]
+    leg = tmp_path / "leg.urdf"
+    leg.write_text("""<robot name="leg"><link name="trunk"/><link name="thigh"/><link name="shin"/><link name="foot"/>
+      <joint name="hip" type="revolute"><parent link="trunk"/><child link="thigh"/><origin xyz="0 0.1 0"/>
+        <axis xyz="0 1 0"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
+      <joint name="knee" type="revolute"><parent link="thigh"/><child link="shin"/><origin xyz="0 0 -0.3"/>
+        <axis xyz="0 1 0"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
+      <joint name="ankle" type="fixed"><parent link="shin"/><child link="foot"/><origin xyz="0 0 -0.3"/></joint>
+    </robot>""")
+    c = from_urdf(leg)
+    ok, why = view_side_valid(RobotKinematics(c.metadata["urdf_path"], c))
+    assert not ok and "below the base plane" in why
+
+
+@pytest.fixture(scope="module")
+def fitted(arm):
+    from chainspace.robot.fit import fit_joint_angles
+
+    chain, robot = arm
+    trial = synthesize(chain, n_frames=12, noise_px=1.0, seed=5)
+    # points in the base frame (transform="none": one candidate, a fast fit), refined on noisy tracks
+    return trial, fit_joint_angles(trial.positions, chain=chain, tracks=trial.tracks, transform="none")
+
+
+def test_a_fit_on_tracks_reports_standard_deviations_of_its_errors_size(fitted):
+    trial, fit = fitted
+    assert fit.q_std.shape == fit.angles.shape
+    seen = fit.observable
+    assert np.isfinite(fit.q_std[:, seen]).all() and (fit.q_std[:, seen] > 0).all()
+    assert 0.6 < fit.noise_px < 1.6
+    d = fit.angles - fit.kinematics().angles(trial.q)
+    d = (d + np.pi) % (2 * np.pi) - np.pi
+    # honest within a factor: errors neither all inside a tenth of a std nor mostly beyond three
+    z = np.abs(d[:, seen]) / fit.q_std[:, seen]
+    assert 0.3 < np.sqrt(np.mean(z ** 2)) < 3.0
+
+
+def test_uncertainty_round_trips_through_save_and_load_and_shows_in_the_report(fitted, tmp_path):
+    from chainspace.io.results import load_results, save_results
+    from chainspace.robot.validation import validate
+
+    trial, fit = fitted
+    amb = np.zeros(len(fit.joint_names), bool)
+    amb[3] = True
+    fake = dataclasses.replace(fit, ambiguous=amb, message=fit.message + "; ambiguous: joint_a4 (180 deg RMS): test",
+                               alternatives=[dict(angles=fit.angles + 0.5, score=1.5, settled_by=None)])
+    paths = save_results(fake, tmp_path / "fit")
+    back = load_results(next(p for p in paths if p.suffix == ".npz"))
+    assert np.allclose(back.q_std, fit.q_std, equal_nan=True)
+    assert back.ambiguous.tolist() == amb.tolist() and back.noise_px == pytest.approx(fit.noise_px)
+    assert np.allclose(back.alternatives[0]["angles"], fit.angles + 0.5) and back.alternatives[0]["score"] == 1.5
+    rep = validate(back, trial.q)
+    row = rep.joints[3]
+    assert row["status"] == "ambiguous" and not row["judged"] and row["rms"] is not None
+    assert "reported std" in rep.table() and "ambiguous" in rep.table()
+    assert all(j.get("std_median") for j in rep.joints if j["status"] == "observable")
+    assert "ambiguous" in back.summary().splitlines()[3]
