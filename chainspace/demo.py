@@ -78,8 +78,11 @@ def demo_clip(n_frames: int = 300, seed: int = 8, *, size: tuple[int, int] = DEM
     w, h = size
     import hashlib
 
-    # the URDF and the marker map are part of the clip's name: an edit of either renders it again
-    digest = hashlib.sha256(urdf.read_bytes() + Path(mmap.source).read_bytes()).hexdigest()[:8]
+    # what is filmed (the URDF, the marker map, the motion and the camera) names the clip: a change to
+    # any of them, including to how synthesize draws a trial, renders it again
+    filmed = (trial.q, trial.intrinsics.K, trial.intrinsics.dist, trial.camera_R, trial.camera_t)
+    digest = hashlib.sha256(urdf.read_bytes() + Path(mmap.source).read_bytes()
+                            + b"".join(np.ascontiguousarray(a, float).tobytes() for a in filmed)).hexdigest()[:8]
     clip = Path(cache or cache_dir()) / f"{robot}_{w}x{h}_{n_frames}f_seed{seed}_d{distance_reaches:g}_v{_CLIP_VERSION}_{digest}.mp4"
     if clip.is_file() and truth_path(clip).is_file():
         _say(progress, f"      (cached clip {clip})")

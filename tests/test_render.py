@@ -1,6 +1,7 @@
 """The renderer puts the robot where Pinocchio's forward kinematics and the camera say, with and without
 lens distortion; it writes a video and its truth, reproducibly, and never over a user's file."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -35,7 +36,10 @@ def test_rendered_robot_covers_its_projected_points(trial, dist):
     u, v = np.rint(pts[inside]).astype(int).T
     ok = (u >= 0) & (u < 320) & (v >= 0) & (v < 240)
     assert ok.sum() >= 5
-    assert robot[v[ok], u[ok]].all(), "a link origin projects off the rendered robot"
+    # within a pixel of the silhouette: some origins sit on a link's end face, where rasterising (and the
+    # distortion's remap) decides the last pixel either way
+    near = cv2.dilate(robot.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    assert near[v[ok], u[ok]].all(), "a link origin projects off the rendered robot"
     ys, xs = np.nonzero(robot)
     lo, hi = pts[inside][ok].min(0), pts[inside][ok].max(0)
     # the silhouette extends past the points by at most the links' thickness (about 0.5 m: < 1/3 of its span)
