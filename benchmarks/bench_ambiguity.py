@@ -40,7 +40,7 @@ def run(robots, seeds: int, n_frames: int, progress=None) -> list[dict]:
         good = flagged = silent = 0
         worst_silent, secs, flagged_names, silent_rows = 0.0, 0.0, set(), []
         for seed in range(seeds):
-            trial = synthesize(chain, n_frames=n_frames, noise_px=1.0, seed=seed)
+            trial = synthesize(chain, n_frames=n_frames, noise_px=1.0, seed=seed, camera="static")
             t0 = time.perf_counter()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -81,7 +81,10 @@ def main(argv=None) -> int:
     p.add_argument("--robots", nargs="+", choices=list(ROWS), default=list(ROWS))
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--frames", type=int, default=30)
+    p.add_argument("--quick", action="store_true", help="the quadruped leg, one seed, 10 frames (a smoke run)")
     a = p.parse_args(argv)
+    if a.quick:
+        a.robots, a.seeds, a.frames = ["quadruped leg"], 1, 10
     if a.seeds < 1 or a.frames < 3:
         p.error("--seeds >= 1 and --frames >= 3 are needed")
     try:

@@ -35,7 +35,7 @@ def run(trials: int, n_frames: int, robot: str, noise_px: float, progress=None, 
     for seed in range(trials):
         if time.perf_counter() - start > 60 * max_minutes:
             break  # the time budget: the table says how many trials ran
-        trial = synthesize(chain, n_frames=n_frames, noise_px=noise_px, seed=seed)
+        trial = synthesize(chain, n_frames=n_frames, noise_px=noise_px, seed=seed, camera="static")
         t0 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -93,7 +93,10 @@ def main(argv=None) -> int:
     p.add_argument("--noise", type=float, default=1.0, help="pixel noise per coordinate")
     p.add_argument("--max-minutes", type=float, default=float("inf"),
                    help="stop starting trials after this long (the table counts the trials that ran)")
+    p.add_argument("--quick", action="store_true", help="2 trials of the double pendulum, 10 frames (a smoke run)")
     a = p.parse_args(argv)
+    if a.quick:
+        a.trials, a.frames, a.robot = 2, 10, "double_pendulum"
     if a.trials < 1 or a.frames < 3 or not a.noise > 0:
         p.error("--trials >= 1, --frames >= 3 and --noise > 0 are needed")
     res = run(a.trials, a.frames, a.robot, a.noise, lambda m: print(m, file=sys.stderr, flush=True), a.max_minutes)

@@ -39,7 +39,7 @@ def test_block_tridiagonal_recursion_gives_the_diagonal_blocks_of_the_inverse():
 
 def test_joint_std_is_the_dense_gauss_newton_covariance_with_camera_and_prior(arm):
     chain, robot = arm
-    trial = synthesize(chain, n_frames=7, noise_px=1.0, seed=2)
+    trial = synthesize(chain, n_frames=7, noise_px=1.0, seed=2, camera="static")
     w = np.ones(trial.tracks.shape[:2])
     view = _camera_view(trial.positions, trial.tracks, w, False)
     free = np.ones((7, robot.nv), bool)
@@ -98,7 +98,7 @@ def fitted(arm):
     from chainspace.robot.fit import fit_joint_angles
 
     chain, robot = arm
-    trial = synthesize(chain, n_frames=12, noise_px=1.0, seed=5)
+    trial = synthesize(chain, n_frames=12, noise_px=1.0, seed=5, camera="static")
     # points in the base frame (transform="none": one candidate, a fast fit), refined on noisy tracks
     return trial, fit_joint_angles(trial.positions, chain=chain, tracks=trial.tracks, transform="none")
 
