@@ -29,6 +29,8 @@ SMALLEST = {
     "bench_robustness.py": (["--quick", "--datasets", "walk35", "--cameras", "1", "--sweeps", "noise"],
                             "### walk35"),
     "bench_static_camera.py": (["--set", "tune", "--quick", "--frames", "40"], "| tune | straight | 0 | 1 |"),
+    # render, find the markers and track their centres on 4 frames; the two joint fits would take 30 s more
+    "bench_video.py": (["--quick", "--frames", "4", "--no-fit"], "| milling_arm | 640x480 | 4 |"),
 }
 # bench_batch.py starts two Dask clusters and a fresh process (tens of seconds even --quick): its pieces
 # are run here instead (test_batch_benchmark_recordings)

@@ -134,3 +134,14 @@ def test_markers_command_writes_tracks_the_marker_chain_reads(tmp_path, milling_
     bad.write_text("hello")
     res = CliRunner().invoke(app, ["markers", str(bad), "--map", "milling_arm", "--out", str(tmp_path / "t2.csv")])
     assert res.exit_code == 2 and "not a video" in res.output
+
+
+def test_ur10_map_hangs_base_markers_from_the_merged_root(example_urdf):
+    """The UR10's base_link is welded to world (one point of its chain): markers on it are the root."""
+    urdf = example_urdf("ur10")
+    mmap = load_marker_map(shipped_marker_map("ur10"), urdf=urdf)
+    on = {m.name: m.link for m in mmap.markers}
+    assert sum(link == "wrist_3_link" for link in on.values()) >= 4  # the wrist needs two points on the last link
+    chain = marker_chain(urdf, mmap, names=["marker_0", "marker_5", "marker_30", "marker_26"])
+    assert chain.joints[0] == "marker_0" and on["marker_0"] == "base_link"
+    assert set(chain.bones) == {("marker_0", "marker_5"), ("marker_5", "marker_26"), ("marker_26", "marker_30")}

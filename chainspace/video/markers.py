@@ -237,18 +237,21 @@ def marker_chain(urdf: str | os.PathLike, marker_map: MarkerMap, names: Sequence
         while parent[k] is not None:
             d, k = d + 1, parent[k]
         depth[link] = d
-    keep.sort(key=lambda m: depth[m.link])
+    # a link welded to another by a fixed joint is one point of the chain with it (UR10: base_link in world)
+    point_of = {link: kept for kept, links in full.metadata.get("merged", {}).items() for link in links}
+    home = {m.name: point_of.get(m.link, m.link) for m in keep}
+    keep.sort(key=lambda m: depth[home[m.name]])
     first: dict[str, str] = {}
     bones = []
     for m in keep:
-        link = m.link
+        link = home[m.name]
         while link is not None and link not in first:
             link = parent[link]
         if link is not None:
             bones.append((first[link], m.name))
         elif first:  # a side branch with no marker above it: hang it from the root marker
             bones.append((keep[0].name, m.name))
-        first.setdefault(m.link, m.name)
+        first.setdefault(home[m.name], m.name)
     pts = [m.name for m in keep]
     rest = full.rest_pose[[full.joint_index(n) for n in pts]]
     meta = dict(full.metadata)
