@@ -26,6 +26,7 @@ through the same camera (distortion included). Everything is a function of the i
 
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
 import time
@@ -148,6 +149,30 @@ class RenderResult:
     seconds_per_frame: float
 
 
+@contextlib.contextmanager
+def _quiet_c_output():
+    """Silence what pybullet's C++ code prints on file descriptors 1 and 2 (its build date; "No inertial
+    data for link ..." for every massless link, about physics, which rendering does not use)."""
+    import ctypes
+    import sys
+
+    libc = ctypes.CDLL(None)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    libc.fflush(None)
+    saved = [os.dup(fd) for fd in (1, 2)]
+    try:
+        with open(os.devnull, "wb") as null:
+            for fd in (1, 2):
+                os.dup2(null.fileno(), fd)
+            yield
+            libc.fflush(None)  # C's buffered output goes to /dev/null, not to the terminal at exit
+    finally:
+        for fd, copy in zip((1, 2), saved):
+            os.dup2(copy, fd)
+            os.close(copy)
+
+
 class RobotRenderer:
     """A pybullet scene of one robot (and its markers) seen by one pinhole camera.
 
@@ -163,8 +188,10 @@ class RobotRenderer:
     def __init__(self, urdf_or_chain: Any, camera: Any, R: Any, t: Any, *, markers: Any = None, seed: int = 0,
                  supersample: int = 2, floor: bool = True, shadow: bool = True,
                  light_direction: tuple[float, float, float] = (0.4, -0.6, 1.0)) -> None:
-        import pybullet as p
         import pinocchio as pin
+
+        with _quiet_c_output():  # its build date, printed on import
+            import pybullet as p
 
         from ..cameras.pinhole import as_camera
         from ..io.urdf import from_urdf, pinocchio_model
@@ -185,7 +212,8 @@ class RobotRenderer:
         self.data = self.model.createData()
         self._pin = pin
         self._p = p
-        self.cid = p.connect(p.DIRECT)
+        with _quiet_c_output():
+            self.cid = p.connect(p.DIRECT)
         self._tmp = tempfile.TemporaryDirectory(prefix="chainspace-render-")
         try:
             self._build(np.random.default_rng(seed), floor)
@@ -207,8 +235,9 @@ class RobotRenderer:
         # pybullet resolves package:// and relative mesh paths against the URDF's folder and its search path
         p.setAdditionalSearchPath(str(self.urdf.parent), physicsClientId=cid)
         try:
-            self.body = p.loadURDF(str(self.urdf), useFixedBase=True, flags=p.URDF_USE_MATERIAL_COLORS_FROM_MTL,
-                                   physicsClientId=cid)
+            with _quiet_c_output():
+                self.body = p.loadURDF(str(self.urdf), useFixedBase=True,
+                                       flags=p.URDF_USE_MATERIAL_COLORS_FROM_MTL, physicsClientId=cid)
         except p.error as exc:
             raise ChainspaceError(f"{self.urdf}: pybullet cannot load this URDF for rendering ({exc})") from None
         # joints pybullet moves -> their coordinate in Pinocchio's q (continuous joints: angle from cos, sin)
