@@ -439,6 +439,9 @@ def fit(
         rec = load_results(source)
         if not hasattr(rec, "poses"):
             raise TrackError(f"{source}: this is a joint fit, not a reconstruction")
+        if markers is not None:
+            raise TrackError(f"--markers goes with tracks; {source} is a reconstruction, which carries its chain "
+                             "(give --markers to 'chainspace reconstruct', or fit the tracks file)")
         if extras:
             from .io.urdf import from_urdf
 
