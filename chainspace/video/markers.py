@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import csv
 import os
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,6 +32,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import ChainspaceError, DescriptionError, DescriptionNotFoundError
+from ..progress import progress_reporter
+from .reader import open_video
 
 __all__ = ["Marker", "MarkerMap", "MarkerError", "load_marker_map", "detect_markers", "marker_chain",
            "MarkerTracks", "marker_corners_local", "save_marker_tracks", "shipped_marker_map"]
@@ -376,52 +378,6 @@ def refine_corners(grey: np.ndarray, corners: np.ndarray, marker_map: MarkerMap,
     return new
 
 
-def read_frames(video: str | os.PathLike) -> tuple[Iterator[np.ndarray], int, float, tuple[int, int]]:
-    """(frames as BGR arrays, one at a time, frame count, fps, (w, h)) of a video file or a folder of
-    numbered images (``f9.png`` before ``f10.png``; 30 fps). Raises :class:`ChainspaceError` when it
-    cannot be read."""
-    import re
-
-    import cv2
-
-    path = Path(video)
-    if path.is_dir():
-        files = sorted((p for p in path.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg")),
-                       key=lambda p: [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", p.name)])
-        if not files:
-            raise ChainspaceError(f"{path}: no PNG or JPEG images in the folder")
-        first = cv2.imread(str(files[0]))
-        if first is None:
-            raise ChainspaceError(f"{files[0]}: not a readable image")
-
-        def gen() -> Iterator[np.ndarray]:
-            for f in files:
-                im = cv2.imread(str(f))
-                if im is None:
-                    raise ChainspaceError(f"{f}: not a readable image")
-                yield im
-        return gen(), len(files), 30.0, (first.shape[1], first.shape[0])
-    if not path.is_file():
-        raise DescriptionNotFoundError(f"video not found: {path}")
-    cap = cv2.VideoCapture(str(path))
-    if not cap.isOpened():
-        raise ChainspaceError(f"{path}: not a video OpenCV can read")
-    n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-    fps = float(cap.get(cv2.CAP_PROP_FPS)) or 30.0
-    size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
-
-    def gen() -> Iterator[np.ndarray]:
-        try:
-            while True:
-                ok, im = cap.read()
-                if not ok:
-                    break
-                yield im
-        finally:
-            cap.release()
-    return gen(), n, fps, size
-
-
 def detect_markers(video: str | os.PathLike, marker_map: MarkerMap | str | os.PathLike, *,
                    progress: bool = False) -> MarkerTracks:
     """Find the map's markers in every frame of ``video`` (a video file or a folder of images).
@@ -430,11 +386,15 @@ def detect_markers(video: str | os.PathLike, marker_map: MarkerMap | str | os.Pa
     :class:`ChainspaceError` when the video cannot be read or holds no frame.
     """
     mmap = marker_map if isinstance(marker_map, MarkerMap) else load_marker_map(marker_map)
-    frames, n, fps, size = read_frames(video)
     det = _detector(mmap)
     found = []
-    for im in _progress(frames, n, "detecting markers", progress):
-        found.append(detect_in_frame(im, mmap, det))
+    # a folder of images states no rate: 30 fps, as before (detection does not use it)
+    with open_video(video, fps=30.0 if Path(video).is_dir() else None) as frames, \
+            progress_reporter(progress, frames.frame_count or 0, "detecting markers") as report:
+        for k, im in enumerate(frames, 1):
+            found.append(detect_in_frame(im, mmap, det))
+            report(k)
+    fps, size = frames.fps, frames.size
     if not found:
         raise ChainspaceError(f"{video}: the video holds no frame")
     corners = np.stack(found)
@@ -454,16 +414,3 @@ def save_marker_tracks(path: str | os.PathLike, found: MarkerTracks, *, overwrit
         raise ChainspaceError("no marker was found in any frame: nothing to write")
     return save_tracks(path, found.centres[:, keep], [found.names[k] for k in keep],
                        confidence=found.confidence[:, keep], overwrite=overwrite)
-
-
-def _progress(items: Any, total: int, what: str, show: bool | Callable) -> Iterator[Any]:
-    if not show:
-        yield from items
-        return
-    from rich.progress import Progress
-
-    with Progress(transient=True) as bar:
-        task = bar.add_task(what, total=total or None)
-        for it in items:
-            yield it
-            bar.advance(task)

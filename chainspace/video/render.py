@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ChainspaceError
+from ..progress import progress_reporter
 
 __all__ = ["RobotRenderer", "render_video", "render_trial", "truth_path", "load_truth", "RenderResult"]
 
@@ -448,18 +449,19 @@ def render_video(urdf_or_chain: Any, q: Any, camera: Any, R: Any, t: Any, out: s
         else:
             tmp.mkdir(parents=True, exist_ok=True)
         spent = 0.0
-        from .markers import _progress
-
         try:
-            for f in _progress(range(len(q)), len(q), f"rendering {out.name}", progress):
-                t0 = time.perf_counter()
-                img, seg = r.render(q[f])
-                spent += time.perf_counter() - t0
-                visible[f] = r.visible(truth["marker_corners"][f], truth["marker_facing"][f], seg)
-                if is_video:
-                    writer.write(img)
-                elif not cv2.imwrite(str(tmp / f"frame_{f:05d}.png"), img):
-                    raise ChainspaceError(f"{tmp}: cannot write frame {f}")
+            with progress_reporter(progress, len(q), f"rendering {out.name}") as report:
+                for f in range(len(q)):
+                    report(f)
+                    t0 = time.perf_counter()
+                    img, seg = r.render(q[f])
+                    spent += time.perf_counter() - t0
+                    visible[f] = r.visible(truth["marker_corners"][f], truth["marker_facing"][f], seg)
+                    if is_video:
+                        writer.write(img)
+                    elif not cv2.imwrite(str(tmp / f"frame_{f:05d}.png"), img):
+                        raise ChainspaceError(f"{tmp}: cannot write frame {f}")
+                report(len(q))
         except BaseException:
             if is_video:
                 writer.release()
