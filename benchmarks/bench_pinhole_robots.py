@@ -51,6 +51,22 @@ def film(chain, robot, cond, n_frames, seed):
     return synthesize(chain, distance_reaches=d, **kw)
 
 
+def per_joint(fit, tr):
+    """One line: each judged joint's RMS error (deg), with the median reported std and the share of
+    frames within one std when the fit gives q_std."""
+    from chainspace.robot.validation import validate
+
+    out = []
+    for j in validate(fit, tr.q).joints:
+        if j["rms"] is None:
+            continue
+        s = f"{j['name']} {j['rms']:.2f}"
+        if j.get("std_median") is not None:
+            s += f" (std {j['std_median']:.2f}, {j.get('within_1_std_pct') or 0:.0f} % within)"
+        out.append(s)
+    return ", ".join(out)
+
+
 def run(robots, conds, n_frames, seeds, progress):
     from chainspace.reconstruction.pipeline import reconstruct
     from chainspace.robot.fit import fit_joint_angles
@@ -84,7 +100,7 @@ def run(robots, conds, n_frames, seeds, progress):
                         ferr.append(100 * abs(fit.focal_px - tr.intrinsics.K[0, 0]) / tr.intrinsics.K[0, 0]
                                     if fit.focal_px is not None else np.nan)
                     progress(f"{name} {cond} seed {seed}: worst joint {j:.3f} deg, 3D {e3[-1]:.2f} %, "
-                             f"{time.perf_counter() - t0:.0f} s; {fit.message[-160:]}")
+                             f"{time.perf_counter() - t0:.0f} s; {fit.message[-160:]}\n  " + per_joint(fit, tr))
                 except Exception as ex:
                     failed.append(f"seed {seed}: {type(ex).__name__}: {ex}")
                     errs.append(np.inf)  # every run counts in every mean and maximum

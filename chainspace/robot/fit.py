@@ -695,7 +695,9 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         s = s if transform == "similarity" else 1.0
     positions = s * pos_base @ R.T + t
     residual_3d = _rms_per_frame(np.linalg.norm(positions - np.nan_to_num(poses), axis=-1), w3)
-    msg = weak_msg
+    # the weak fit's ambiguities are perspective's to settle: its own (trust) notes replace them
+    msg = "; ".join(m for m in weak_msg.split("; ") if not m.startswith(
+        ("ambiguous: ", "the reported one is a guess (fit.alternatives)", "the tracked points hang")))
     tie_note = "; the motion and its mirror image fit the data equally well (weak perspective)"
     if tie_note in msg:
         cut = msg.index(tie_note)
@@ -707,6 +709,8 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
                 + ("" if best["settled"] else " (within the noise: a guess)"))
     if focal is not None:
         msg += f"; focal length estimated: {focal:.1f} +- {focal_std:.1f} px"
+    trust = best["trust"]  # q_std, noise_px, alternatives, ambiguous (chainspace.robot.uncertainty)
+    msg += "".join("; " + n for n in trust["notes"])
     converged = np.broadcast_to(np.asarray(best["conv"], bool), (len(q),)).copy()
     if not converged.all():
         msg = "the solver stopped before it converged; " + msg
@@ -719,4 +723,6 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         n_iter=int(weak.n_iter + best["n_iter"]), relative=weak.relative, tracks=tracks, confidence=confidence,
         positions_base=pos_base, input_poses=poses, timings=timings, intrinsics=cam,
         camera_pose=(view.R[0].copy(), view.t[0].copy()), focal_px=focal, focal_std_px=focal_std,
+        q_std=trust["q_std"], noise_px=trust["noise_px"], alternatives=trust["alternatives"],
+        ambiguous=trust["ambiguous"],
     )

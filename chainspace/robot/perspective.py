@@ -149,9 +149,8 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     best["n_alternatives"] = len(others)
     best["var"] = var
     best["measured"], best["reason"] = True, ""
-    if aspect != 1.0:  # back to the tracks' pixel rows
-        pass
     best["aspect"] = aspect
+    best["trust"] = _trust(robot, best, fits, tr, w)
     if fit_focal:
         cov = _camera_covariance(robot, best["q"], best["view"], tr, w, best["free"], best["delta"], var)
         f = best["view"].f
@@ -168,6 +167,21 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
                               f"(squared residuals {best['sse']:.4g} against {weak_sse:.4g} px^2, noise "
                               f"variance {var:.3g} px^2: no measurable perspective)")
     return best
+
+
+def _trust(robot: RobotKinematics, best: dict, fits: list[dict], tracks: np.ndarray, w: np.ndarray) -> dict:
+    """What the perspective fit knows (:func:`chainspace.robot.uncertainty.assess_fit`): per-frame joint
+    standard deviations with the static pinhole camera (pose, and the focal when fitted: the view's
+    parameters) eliminated, the measured pixel noise, and the other starts' fits that tie with the
+    winner as alternatives. Perspective decides the camera side, so no camera-side rule sets one aside."""
+    from .uncertainty import assess_fit
+
+    st = best["start"]
+    best["out"] = (best["q"], best["view"], best["rn"], best["pos"], best["conv"], best["n_iter"])
+    best["free_prior"] = st["free_prior"]
+    var = max(_noise_sigma(best["rn"], w), st["px_floor"]) ** 2
+    return assess_fit(robot, best, [(r["objective"], r) for r in fits], var, tracks, w, best["prior"], st["blind"],
+                      st["gauge"], lambda r: False, "")
 
 
 def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], tracks: np.ndarray,
