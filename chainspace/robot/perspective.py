@@ -97,13 +97,13 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
             out = new
         objective = _robust(out[2], w, delta)
         prior = None
-        if smooth and accel_std is not None and robot.euclidean and F >= 3:
+        if smooth and accel_std is not None and F >= 3:
             sigma = max(_noise_sigma(out[2], w), 1e-3)
             mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
             prior = _motion_prior(unseen, mu, np.inf if speed_decay_s is None else speed_decay_s * float(fps))
             out = _smooth_lm(robot, robot.continuous(out[0]), tr, w, out[1], st["free_prior"], ones, max_iter, tol,
                              delta, prior)
-            objective = _smoothed_objective(prior, out[0], out[2], w, delta)
+            objective = _smoothed_objective(prior, robot.angles(out[0]), out[2], w, delta)
         return dict(q=out[0], view=out[1], rn=out[2], pos=out[3], conv=out[4], n_iter=out[5] + n_iter,
                     objective=objective, sse=float((w * out[2] ** 2).sum()), free=st["free"], delta=delta,
                     prior=prior, start=st)
@@ -194,11 +194,9 @@ def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], track
     placed for another branch) ends in a poor minimum even when its wrist is on the right side of the
     depth mirror. Under the winner's camera, the wrist branch that perspective prefers is then found
     by its objective (xArm7, K known, seed 0: 491.5 -> 265.3, the true motion's own minimum; wrist
-    joints 120 / 83 / 101 -> 0.8 / 0.9 / 2.2 degrees). Only for robots whose q are angles
-    (``robot.euclidean``): elsewhere columns of q are not joints.
+    joints 120 / 83 / 101 -> 0.8 / 0.9 / 2.2 degrees). Tails are swapped per joint angle
+    (:meth:`RobotKinematics.angles`), so a continuous joint's (cos, sin) moves as one.
     """
-    if not robot.euclidean:
-        return None
     view, free, delta = best["view"], best["free"], best["delta"]
     ones = np.ones(view.n_params, bool)
 
@@ -208,13 +206,16 @@ def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], track
 
     base = refit(best["q"])[1]
     winner = None
+    a_best = robot.angles(best["q"])
     for q in others:
-        for k in range(1, robot.nq):
-            if np.abs(_wrapped(robot, q - best["q"])[:, k:]).max() < 0.05:
+        a = robot.angles(q)
+        d = np.where(robot.turns_v, (a - a_best + np.pi) % (2 * np.pi) - np.pi, a - a_best)
+        for k in range(1, robot.nv):
+            if np.abs(d[:, k:]).max() < 0.05:
                 break  # the same tail from here on: nothing new for this or larger k
-            q0 = best["q"].copy()
-            q0[:, k:] = q[:, k:]
-            q1, obj = refit(q0)
+            a0 = a_best.copy()
+            a0[:, k:] = a[:, k:]
+            q1, obj = refit(robot.from_angles(a0))
             if obj < base - 1e-3 * abs(base):  # not a rounding-level tie
                 base, winner = obj, q1
     return winner
