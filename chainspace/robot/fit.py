@@ -118,6 +118,12 @@ does not beat weak perspective's squared residuals by 25 noise variances (a like
 the tracks carry no measurable perspective (a far camera, a long lens): the weak-perspective fit is
 reported, ``message`` says so, and ``focal_px``/``focal_std_px`` hold what was estimated.
 
+The perspective fit says how sure it is as the weak one does (``q_std``, ``noise_px``,
+``alternatives``, ``ambiguous``: :func:`chainspace.robot.uncertainty.assess_fit`), with the static
+pinhole camera (rotation, translation and, when estimated, log f) eliminated from the covariance by
+the Schur complement; the other starts' perspective fits are the candidates for alternatives, and the
+weak fit's ambiguity notes, which perspective re-decides, are dropped.
+
 Observability (the rule)
 ------------------------
 A joint is observable when moving it moves some tracked point in a way no change of camera (or, in

@@ -2,7 +2,8 @@
 focal length estimated) fitted with the joint angles on the reprojection error in pixels, started from
 the weak-perspective fit's winner and its mirror/flip alternatives (see :mod:`chainspace.robot.fit`).
 Perspective then decides the depth mirrors the weak fit left open: under the winner's camera the
-other starts' branches beyond each joint are tried on the winner's arm (:func:`_grafted`).
+other starts' branches beyond each joint are tried on the winner's arm (:func:`_grafted`). The
+winner's standard deviations and alternatives: :func:`_trust`.
 """
 
 from __future__ import annotations
