@@ -151,7 +151,6 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     best["var"] = var
     best["measured"], best["reason"] = True, ""
     best["aspect"] = aspect
-    best["trust"] = _trust(robot, best, fits, tr, w)
     if fit_focal:
         cov = _camera_covariance(robot, best["q"], best["view"], tr, w, best["free"], best["delta"], var)
         f = best["view"].f
@@ -167,6 +166,8 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
             best["reason"] = (f"perspective does not fit the tracks measurably better than weak perspective "
                               f"(squared residuals {best['sse']:.4g} against {weak_sse:.4g} px^2, noise "
                               f"variance {var:.3g} px^2: no measurable perspective)")
+    if best["measured"]:  # else the weak fit is reported, with its own
+        best["trust"] = _trust(robot, best, fits, tr, w)
     return best
 
 
