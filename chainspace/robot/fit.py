@@ -118,6 +118,12 @@ does not beat weak perspective's squared residuals by 25 noise variances (a like
 the tracks carry no measurable perspective (a far camera, a long lens): the weak-perspective fit is
 reported, ``message`` says so, and ``focal_px``/``focal_std_px`` hold what was estimated.
 
+The perspective fit says how sure it is as the weak one does (``q_std``, ``noise_px``,
+``alternatives``, ``ambiguous``: :func:`chainspace.robot.uncertainty.assess_fit`), with the static
+pinhole camera (rotation, translation and, when estimated, log f) eliminated from the covariance by
+the Schur complement; the other starts' perspective fits are the candidates for alternatives, and the
+weak fit's ambiguity notes, which perspective re-decides, are dropped.
+
 Observability (the rule)
 ------------------------
 A joint is observable when moving it moves some tracked point in a way no change of camera (or, in
@@ -695,7 +701,9 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         s = s if transform == "similarity" else 1.0
     positions = s * pos_base @ R.T + t
     residual_3d = _rms_per_frame(np.linalg.norm(positions - np.nan_to_num(poses), axis=-1), w3)
-    msg = weak_msg
+    # the weak fit's ambiguities are perspective's to settle: its own (trust) notes replace them
+    msg = "; ".join(m for m in weak_msg.split("; ") if not m.startswith(
+        ("ambiguous: ", "the reported one is a guess (fit.alternatives)", "the tracked points hang")))
     tie_note = "; the motion and its mirror image fit the data equally well (weak perspective)"
     if tie_note in msg:
         cut = msg.index(tie_note)
@@ -707,6 +715,8 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
                 + ("" if best["settled"] else " (within the noise: a guess)"))
     if focal is not None:
         msg += f"; focal length estimated: {focal:.1f} +- {focal_std:.1f} px"
+    trust = best["trust"]  # q_std, noise_px, alternatives, ambiguous (chainspace.robot.uncertainty)
+    msg += "".join("; " + n for n in trust["notes"])
     converged = np.broadcast_to(np.asarray(best["conv"], bool), (len(q),)).copy()
     if not converged.all():
         msg = "the solver stopped before it converged; " + msg
@@ -719,4 +729,6 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         n_iter=int(weak.n_iter + best["n_iter"]), relative=weak.relative, tracks=tracks, confidence=confidence,
         positions_base=pos_base, input_poses=poses, timings=timings, intrinsics=cam,
         camera_pose=(view.R[0].copy(), view.t[0].copy()), focal_px=focal, focal_std_px=focal_std,
+        q_std=trust["q_std"], noise_px=trust["noise_px"], alternatives=trust["alternatives"],
+        ambiguous=trust["ambiguous"],
     )
