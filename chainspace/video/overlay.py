@@ -294,7 +294,8 @@ def draw_overlay(video: Any, result: Any, *, tracks: Any = None, out: str | os.P
     panel = _Panel(scene, (width, height), thick) if side_by_side else None
     size = (2 * width if side_by_side else width, height)
     seen = 0
-    with frame_writer(target, frames.fps, size, overwrite=overwrite) as writer, progress_reporter(progress, n, "overlay") as report:
+    with frame_writer(target, frames.fps, size, overwrite=overwrite) as writer, \
+            progress_reporter(progress, n, "overlay") as report:
         for f, img in enumerate(frames):
             if f >= n:
                 raise TrackError(f"{name}: the video has more frames than the result's {n}; give the video "
