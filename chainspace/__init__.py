@@ -82,6 +82,7 @@ _EXPORTS: dict[str, str] = {
     # video: reading frames, key frames, tracking points
     "open_video": "video.reader",
     "Video": "video.reader",
+    "frame_writer": "video.writer",
     "load_keyframes": "video.keyframes",
     "track_points": "video.tracking",
     "track_video": "video.tracking",

@@ -615,7 +615,7 @@ def overlay(
                                                "MOV, AVI) or a folder of numbered images.")],
     result: Annotated[Path, typer.Argument(help="joint_angles.npz ('chainspace fit') or reconstruction.npz "
                                                 "('chainspace reconstruct').")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="The overlay video (.mp4).")] = Path("overlay.mp4"),
+    out: Annotated[Path, typer.Option("--out", "-o", help="The overlay video (.mp4), or a folder of PNGs (a name without a suffix).")] = Path("overlay.mp4"),
     tracks: Annotated[Optional[Path], typer.Option(help="2D tracks to draw (any format load_tracks reads); "
                                                         "default the ones the result was fitted to.")] = None,
     side_by_side: Annotated[bool, typer.Option("--side-by-side", help="Add a 3D view beside every frame.")] = False,

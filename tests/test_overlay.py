@@ -186,6 +186,11 @@ def test_image_folder_in_numeric_order(weak, tmp_path):
     assert len(out) == F
     for f in (1, F - 1):  # frame f of the result is drawn on frame f of the folder
         assert _on_robot(out[f], src[f])[0] > 0.97
+    # an output without a suffix is a folder of PNGs: lossless, the footage away from the drawing is unchanged
+    pngs = sorted(draw_overlay(folder, fit, out=tmp_path / "o", progress=False).glob("frame_*.png"))
+    last = cv2.imread(str(pngs[-1]))
+    assert len(pngs) == F and _on_robot(last, src[F - 1])[0] > 0.97
+    assert np.mean((last == src[F - 1]).all(-1)) > 0.5
 
 
 def test_existing_output_is_kept(weak, tmp_path):

@@ -3,6 +3,8 @@ hand, and the result drawn over the footage.
 
 * :mod:`chainspace.video.reader`: :func:`open_video` streams the frames of an MP4/MOV/AVI file or of a
   folder of numbered images (OpenCV), one at a time.
+* :mod:`chainspace.video.writer`: :func:`frame_writer` writes frames to an MP4 or a folder of PNGs,
+  atomically and never over an existing output unless asked: the renderer's and the overlay's writer.
 * :mod:`chainspace.video.keyframes`: the key-frame JSON (frame index -> point name -> pixel).
 * :mod:`chainspace.video.tracking`: :func:`track_points` follows the points through the video with
   pyramidal Lucas-Kanade and a forward-backward check; :func:`track_video` is the file-to-file twin of

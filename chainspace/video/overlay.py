@@ -21,27 +21,26 @@ orthographically from a fixed viewpoint, from the side: the first frame's camera
 about the vertical (a robot's base z axis; the image's vertical for a reconstruction) and made level, so
 that the panel shows the depth the footage cannot; one scale for the whole clip.
 
-Frames are streamed (one in memory at a time) and written as MP4 (``mp4v``) to a temporary file next to
-the output, renamed into place only once complete.
+Frames are streamed (one in memory at a time) and written as MP4 (``mp4v``) or a folder of PNGs by
+:func:`chainspace.video.writer.frame_writer`: to a temporary file next to the output, renamed into place
+only once complete.
 """
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import os
-import tempfile
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..errors import ChainspaceError, TrackError, VideoError, is_real
+from ..errors import TrackError, VideoError, is_real
 from ..io.results import check_writable
 from ..progress import progress_reporter
 from .reader import open_video
+from .writer import VIDEO_SUFFIXES, frame_writer
 
 __all__ = ["draw_overlay"]
 
@@ -52,7 +51,6 @@ _ERROR = (40, 40, 235)
 _TEXT = (255, 255, 255)
 _PANEL = (40, 36, 32)
 
-_VIDEO_OUT_SUFFIXES = {".mp4", ".m4v", ".mov", ".avi"}
 _SHIFT = 4  # cv2 drawing with 4 fractional bits: points are placed to 1/16 px, not rounded to whole pixels
 
 
@@ -229,37 +227,10 @@ def _draw_frame(img: np.ndarray, scene: _Scene, f: int, rms: float, thick: int) 
     _text(img, f"frame {f}  RMS " + ("-" if not np.isfinite(rms) else f"{rms:.2f} px"), 0, thick)
 
 
-# ---------------------------------------------------------------------------------------- writing
-@contextlib.contextmanager
-def _video_writer(target: Path, fps: float, size: tuple[int, int], overwrite: bool) -> Iterator[Any]:
-    """A cv2.VideoWriter on a temporary file beside ``target``, renamed over it when the block completes."""
-    import cv2
-
-    check_writable([target], overwrite)
-    if target.is_dir():
-        raise TrackError(f"{target} is a folder; give a file name such as {target / 'overlay.mp4'}")
-    target.parent.mkdir(parents=True, exist_ok=True)
-    # the temporary file keeps the target's suffix: OpenCV picks the container from it
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=f".part{target.suffix}", dir=target.parent)
-    os.close(fd)
-    writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
-    try:
-        if not writer.isOpened():
-            raise ChainspaceError(f"cannot write {target}: OpenCV has no mp4v encoder for {target.suffix}")
-        yield writer
-        writer.release()
-        check_writable([target], overwrite)  # another process may have created it meanwhile
-        os.replace(tmp, target)
-    finally:
-        writer.release()
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-
-
 def draw_overlay(video: Any, result: Any, *, tracks: Any = None, out: str | os.PathLike = "overlay.mp4",
                  side_by_side: bool = False, overwrite: bool = False, progress: bool = True,
                  fps: float | None = None) -> Path:
-    """Draw a result over every frame of its video and write an MP4; return its path.
+    """Draw a result over every frame of its video and write an MP4 (or a folder of PNGs); return its path.
 
     Drawn per frame: bones and joints reprojected through the result's camera (green), the tracks
     (orange crosses), a red line from each track to its reprojection, and the frame's RMS reprojection
@@ -281,9 +252,10 @@ def draw_overlay(video: Any, result: Any, *, tracks: Any = None, out: str | os.P
         The 2D tracks to draw (F, J, 2) px, or a track file :func:`~chainspace.load_tracks` reads;
         default: the tracks the result was fitted to.
     out
-        The output video (``.mp4``, ``.m4v``, ``.mov`` or ``.avi``; codec mp4v), written atomically. An
-        existing file is replaced only with ``overwrite=True``. MPEG-4 frames have even sizes: an odd
-        width or height loses its last column or row.
+        The output video (``.mp4``, ``.m4v``, ``.mov`` or ``.avi``; codec mp4v), or without a suffix a
+        folder of ``frame_00000.png``... (lossless), written atomically. An existing output is replaced
+        only with ``overwrite=True``. MPEG-4 frames have even sizes: an odd width or height loses its
+        last column or row.
     side_by_side
         Add a 3D view panel of the video's size on the right (the output is twice as wide).
     progress
@@ -292,9 +264,9 @@ def draw_overlay(video: Any, result: Any, *, tracks: Any = None, out: str | os.P
         Frame rate of the output; default the video file's own, 30 for a folder of images.
     """
     target = Path(out)
-    if target.suffix.lower() not in _VIDEO_OUT_SUFFIXES:
-        raise TrackError(f"{target}: the overlay is a video; give a name ending in "
-                         f"{', '.join(sorted(_VIDEO_OUT_SUFFIXES))}")
+    if target.suffix and target.suffix.lower() not in VIDEO_SUFFIXES:
+        raise TrackError(f"{target}: the overlay is a video; give a name ending in {', '.join(VIDEO_SUFFIXES)}, "
+                         "or a name without a suffix for a folder of PNG images")
     if fps is not None and not (is_real(fps) and fps > 0):
         raise TrackError(f"fps must be a finite number > 0 (frames per second), not {fps!r}")
     check_writable([target], overwrite)  # refuse before any work
@@ -322,7 +294,8 @@ def draw_overlay(video: Any, result: Any, *, tracks: Any = None, out: str | os.P
     panel = _Panel(scene, (width, height), thick) if side_by_side else None
     size = (2 * width if side_by_side else width, height)
     seen = 0
-    with _video_writer(target, frames.fps, size, overwrite) as writer, progress_reporter(progress, n, "overlay") as report:
+    with frame_writer(target, frames.fps, size, overwrite=overwrite) as writer, \
+            progress_reporter(progress, n, "overlay") as report:
         for f, img in enumerate(frames):
             if f >= n:
                 raise TrackError(f"{name}: the video has more frames than the result's {n}; give the video "

@@ -15,10 +15,11 @@ marker corners' sub-pixel accuracy needs. Lens distortion: the undistorted image
 canvas large enough to cover the distorted field) and warped with ``cv2.remap``, each output pixel
 taking the undistorted pixel of its ray (:meth:`PinholeCamera.undistort`).
 
-:func:`render_video` writes an MP4 (``cv2.VideoWriter``, ``mp4v``) or a folder of PNGs, and a truth NPZ
-beside it (:func:`truth_path`): ``q`` (F, nq), ``K``, ``dist``, ``R``, ``t``, ``image_size``, ``fps``,
-``points`` (F, J, 2) px and ``positions`` (F, J, 3) m of the chain's points (the URDF's tracked points),
-``point_names``, ``marker_ids``, ``marker_corners`` (F, M, 4, 2) px and ``marker_visible`` (F, M), all
+:func:`render_video` writes an MP4 (``mp4v``) or a folder of PNGs
+(:func:`~chainspace.video.writer.frame_writer`), and a truth NPZ beside it (:func:`truth_path`): ``q``
+(F, nq), ``K``, ``dist``, ``R``, ``t``, ``image_size``, ``fps``, ``points`` (F, J, 2) px and
+``positions`` (F, J, 3) m of the chain's points (the URDF's tracked points), ``point_names``,
+``marker_ids``, ``marker_corners`` (F, M, 4, 2) px and ``marker_visible`` (F, M), all
 through the same camera (distortion included). Everything is a function of the inputs and ``seed``
 (textures), so a cached clip is reproducible from the repository. :func:`render_trial` renders a
 :class:`~chainspace.synthetic.robot.RobotTrial` filmed by ``synthesize(camera="pinhole", ...)``.
@@ -425,9 +426,8 @@ def render_video(urdf_or_chain: Any, q: Any, camera: Any, R: Any, t: Any, out: s
     renamed into place. ``scene``: passed to :class:`RobotRenderer` (``floor``, ``shadow``,
     ``light_direction``). Returns a :class:`RenderResult`.
     """
-    import cv2
-
     from ..io.results import atomic_write, check_writable
+    from .writer import frame_writer
 
     out = Path(out)
     tpath = truth_path(out)
@@ -440,44 +440,17 @@ def render_video(urdf_or_chain: Any, q: Any, camera: Any, R: Any, t: Any, out: s
         w, h = r.camera.image_size
         truth = r.truth(q)
         visible = np.zeros(truth["marker_facing"].shape, bool)
-        is_video = out.suffix.lower() in (".mp4", ".avi", ".mov")
-        tmp = out.with_name(f".{out.name}.{os.getpid()}.partial{out.suffix}")  # unique: two processes may render one clip
-        if is_video:
-            writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (w, h))
-            if not writer.isOpened():
-                raise ChainspaceError(f"{out}: OpenCV cannot write this video (try a .mp4 name or a folder)")
-        else:
-            tmp.mkdir(parents=True, exist_ok=True)
         spent = 0.0
-        try:
-            with progress_reporter(progress, len(q), f"rendering {out.name}") as report:
-                for f in range(len(q)):
-                    report(f)
-                    t0 = time.perf_counter()
-                    img, seg = r.render(q[f])
-                    spent += time.perf_counter() - t0
-                    visible[f] = r.visible(truth["marker_corners"][f], truth["marker_facing"][f], seg)
-                    if is_video:
-                        writer.write(img)
-                    elif not cv2.imwrite(str(tmp / f"frame_{f:05d}.png"), img):
-                        raise ChainspaceError(f"{tmp}: cannot write frame {f}")
-                report(len(q))
-        except BaseException:
-            if is_video:
-                writer.release()
-                tmp.unlink(missing_ok=True)
-            else:
-                import shutil
-
-                shutil.rmtree(tmp, ignore_errors=True)
-            raise
-        if is_video:
-            writer.release()
-        if out.exists() and out.is_dir():
-            import shutil
-
-            shutil.rmtree(out)
-        os.replace(tmp, out)
+        with frame_writer(out, fps, (w, h), overwrite=overwrite) as writer, \
+                progress_reporter(progress, len(q), f"rendering {out.name}") as report:
+            for f in range(len(q)):
+                report(f)
+                t0 = time.perf_counter()
+                img, seg = r.render(q[f])
+                spent += time.perf_counter() - t0
+                visible[f] = r.visible(truth["marker_corners"][f], truth["marker_facing"][f], seg)
+                writer.write(img)
+            report(len(q))
         cam = r.camera
         arrays = dict(q=q, K=cam.K, dist=cam.dist, R=r.R, t=r.t, image_size=np.array([w, h]), fps=np.array(fps),
                       points=truth["points"], positions=truth["positions"],
