@@ -845,7 +845,8 @@ def track(
     fps: Annotated[Optional[float], typer.Option(help="Frame rate (needed for an image folder).")] = None,
     chain: Annotated[Optional[str], typer.Option("--chain", "-c", help="Shipped name or description file: "
                                                                        "the tracks get its joints, in order.")] = None,
-    window: Annotated[int, typer.Option(help="Side of the patch tracked around each point, px (odd).")] = 21,
+    window: Annotated[Optional[int], typer.Option(
+        help="Side of the patch tracked around each point, px (odd); default 21 up to 480 rows, 31 at 1080.")] = None,
     levels: Annotated[int, typer.Option(help="Pyramid levels above the full image.")] = 3,
     fb_max_px: Annotated[float, typer.Option("--fb-max-px", help="Forward-backward error beyond which a "
                                                                  "point is lost, px.")] = 1.0,

@@ -227,3 +227,11 @@ def test_a_rotating_patch_is_followed_without_drift(tmp_path, rng):
     result = track_points(d, {"0": {"p": start.tolist()}}, fps=30)
     err = np.linalg.norm(result.tracks[:, 0] - np.array(truth), axis=1)
     assert err.max() < 0.1, err
+
+
+def test_the_default_patch_grows_with_the_image_and_stays_odd():
+    from chainspace.video.tracking import default_window
+
+    sides = [default_window(h) for h in (240, 480, 720, 1080, 2160)]
+    assert sides[:2] == [21, 21] and sides[3] == 31  # 31 px at 1080 rows: no marker lost on the rendered UR10
+    assert sides == sorted(sides) and all(s % 2 == 1 for s in sides)
