@@ -136,3 +136,26 @@ def test_uncertainty_round_trips_through_save_and_load_and_shows_in_the_report(f
     assert "reported std" in rep.table() and "ambiguous" in rep.table()
     assert all(j.get("std_median") for j in rep.joints if j["status"] == "observable")
     assert "ambiguous" in back.summary().splitlines()[3]
+
+
+def test_a_pinhole_fit_reports_standard_deviations_and_the_wrist_flip_that_moves_no_point(arm):
+    """The perspective fit reported no deviation and no alternative: a wrist turned half a turn (the
+    next joint mirrored) moves no tracked point, so perspective cannot settle it either (the Kinova's
+    176-179 degree wrists in bench_full_range were reported observable)."""
+    from chainspace.robot.fit import fit_joint_angles
+
+    chain, robot = arm
+    trial = synthesize(chain, n_frames=8, noise_px=1.0, seed=5, camera="pinhole", focal_px=1450.0,
+                       distance_reaches=2.0)
+    fit = fit_joint_angles(trial.positions, chain=chain, tracks=trial.tracks, transform="none",
+                           intrinsics=trial.intrinsics)
+    seen = fit.observable
+    assert fit.q_std.shape == fit.angles.shape and np.isfinite(fit.q_std[:, seen]).all()
+    assert 0.5 < fit.noise_px < 2.0
+    wrist = [fit.joint_names.index(n) for n in ("joint_a4", "joint_a6")]
+    assert fit.ambiguous[wrist].all() and "ambiguous: joint_a4" in fit.message
+    assert min(a["score"] for a in fit.alternatives) < 1.0  # the exact twin: no worse than the reported motion
+    d = (fit.angles - robot.angles(trial.q) + np.pi) % (2 * np.pi) - np.pi
+    judged = seen & ~fit.ambiguous
+    z = np.abs(d[:, judged]) / fit.q_std[:, judged]
+    assert 0.3 < np.sqrt(np.mean(z ** 2)) < 3.0

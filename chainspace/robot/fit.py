@@ -167,7 +167,7 @@ from .starts import _fit_3d, _initial_camera, _sequential_ik
 from .observability import _fill_unseen, _gauge_directions, _hold, _notes, _structural, _unseen
 from .candidates import FACE_ON_DEG, TIE_VARIANCES, _same_motion, _face_on_planes, _frame_ranges, _nearest_rest_branch, _viterbi_reanchored
 from .selection import _most_probable, _prefer_rest, view_side_valid
-from .uncertainty import assess_fit
+from .uncertainty import assess_fit, assess_perspective
 
 __all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"]
 
@@ -685,6 +685,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     if cam is None:
         cam = PinholeCamera(view.f, view.f, view.c[0], view.c[1], None, *(int(v) for v in image_size))
     q, pos_base = best["q"], best["pos"]
+    trust = assess_perspective(robot, best, w2, ~weak.observable & ~weak.relative, np.asarray(weak.relative, bool))
     residual_px = _rms_per_frame(best["rn"], w2)
     cams, ts2 = view.weak_approximation(pos_base)
     w3 = np.isfinite(poses).all(-1).astype(float) * (1.0 if confidence is None else confidence)
@@ -705,6 +706,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     if best["n_alternatives"]:
         msg += ("; perspective chose among the weak-perspective fit and its mirror/flip alternatives"
                 + ("" if best["settled"] else " (within the noise: a guess)"))
+    msg += "".join("; " + n for n in trust["notes"])
     if focal is not None:
         msg += f"; focal length estimated: {focal:.1f} +- {focal_std:.1f} px"
     converged = np.broadcast_to(np.asarray(best["conv"], bool), (len(q),)).copy()
@@ -719,4 +721,6 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         n_iter=int(weak.n_iter + best["n_iter"]), relative=weak.relative, tracks=tracks, confidence=confidence,
         positions_base=pos_base, input_poses=poses, timings=timings, intrinsics=cam,
         camera_pose=(view.R[0].copy(), view.t[0].copy()), focal_px=focal, focal_std_px=focal_std,
+        q_std=trust["q_std"], noise_px=trust["noise_px"], alternatives=trust["alternatives"],
+        ambiguous=trust["ambiguous"],
     )

@@ -152,6 +152,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     if aspect != 1.0:  # back to the tracks' pixel rows
         pass
     best["aspect"] = aspect
+    best["fits"], best["tracks"] = fits, tr  # every start's fit, for the alternatives (uncertainty.assess_perspective)
     if fit_focal:
         cov = _camera_covariance(robot, best["q"], best["view"], tr, w, best["free"], best["delta"], var)
         f = best["view"].f

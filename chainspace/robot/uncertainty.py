@@ -200,6 +200,21 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     return dict(q_std=std, noise_px=noise, alternatives=alts, ambiguous=ambiguous, ambiguity_deg=worst, notes=notes)
 
 
+def assess_perspective(robot: RobotKinematics, best: dict, w: np.ndarray, blind: np.ndarray,
+                       gauge: np.ndarray) -> dict:
+    """:func:`assess_fit` for the pinhole fit (``best``: :func:`chainspace.robot.perspective.refine_perspective`'s
+    winner, with every start's fit in ``best["fits"]`` and the tracks it fitted in ``best["tracks"]``):
+    standard deviations under the pinhole camera, and as alternatives the other starts' fits that tie on
+    the perspective objective and the winner's exact depth-flip twins. Perspective settles the depth
+    mirror, so no camera-side rule sets an alternative aside here; but a flip that moves no tracked
+    point (a wrist turned half a turn, the next joint mirrored) is no better settled by perspective than
+    by weak perspective, and without this the pinhole fit reported it observable."""
+    winner = dict(best, out=(best["q"], best["view"]), free_prior=best["start"]["free_prior"])
+    scored = [(r["objective"], winner if r is best else r) for r in best["fits"]]
+    return assess_fit(robot, winner, scored, best["var"], best["tracks"], w, best["prior"], blind, gauge,
+                      lambda r: False, "")
+
+
 def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict]], tracks: np.ndarray,
                  w: np.ndarray, prior, free: np.ndarray) -> list[tuple[float, dict]]:
     """The winner's exact twins, scored as ``scored`` is: per link, the motion with that link and
