@@ -81,7 +81,7 @@ variances of the best: a likelihood-ratio test), applies these rules:
   plane; legs or a hanging limb do not). What the rules could not settle validly is reported, not
   hidden: ``fit.alternatives`` (the tied motions, the reported motion's exact depth-flip twins
   included) and ``fit.ambiguous`` (joints where one differs by more than
-  ``uncertainty.AMBIGUOUS_DEG`` = 5 degrees RMS); ``fit.q_std`` gives per-frame standard deviations
+  ``uncertainty.AMBIGUOUS_DEG`` = 2 degrees RMS); ``fit.q_std`` gives per-frame standard deviations
   from the fit's Gauss-Newton covariance (:mod:`chainspace.robot.uncertainty`).
 * *Singularities.* Where two joint axes align (a wrist stretched straight; a 7-axis arm's upper arm
   along its first axis) only the sum of their angles is seen, and a path may continue on either
@@ -250,6 +250,7 @@ def fit_joint_angles(
     intrinsics: Any = None,
     image_size: tuple[float, float] | None = None,
     _starts: list | None = None,
+    _assess: bool = True,
 ) -> JointFit:
     """Fit the robot's joint angles to a reconstruction (and its 2D tracks).
 
@@ -559,8 +560,9 @@ def fit_joint_angles(
             tie_var = max(r["sse"] / max(r["n_obs"], 1), (0.05 * px_floor) ** 2)
             scored = [(x["sse"], x) for x in results]
         t2 = time.perf_counter()
+        # (not for the weak start of a pinhole fit with known intrinsics, which is assessed itself)
         trust = assess_fit(robot, r, scored, tie_var, tracks, w2, prior, blind, gauge, seen_from_wrong_side,
-                           side_why if view_from is not None else "")
+                           side_why if view_from is not None else "") if _assess else {}
         timings["uncertainty"] = time.perf_counter() - t2
         converged = conv2  # the 3D stage only started this one
         residual_px = _rms_per_frame(rn, w2)
@@ -656,7 +658,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
                                 # known intrinsics: perspective chooses among the candidates, so the weak
                                 # fit's smoothed choice among them is skipped (the perspective fit is smoothed)
                                 accel_std=accel_std if cam is None else None,
-                                speed_decay_s=speed_decay_s, _starts=starts)
+                                speed_decay_s=speed_decay_s, _starts=starts, _assess=cam is None)
     robot = weak.kinematics()
     weak_msg = weak.message.removeprefix("the solver stopped before it converged; ")
     w2 = np.isfinite(tracks_u).all(-1).astype(float) * (1.0 if confidence is None else confidence)
@@ -696,7 +698,9 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         s = s if transform == "similarity" else 1.0
     positions = s * pos_base @ R.T + t
     residual_3d = _rms_per_frame(np.linalg.norm(positions - np.nan_to_num(poses), axis=-1), w3)
-    msg = weak_msg
+    # the weak fit's ambiguity (and why its camera-side rule did not apply) is replaced by the pinhole fit's
+    msg = "; ".join(n for n in weak_msg.split("; ") if not n.startswith(("ambiguous: ", "the reported one is a guess",
+                                                                           "the tracked points hang below")))
     tie_note = "; the motion and its mirror image fit the data equally well (weak perspective)"
     if tie_note in msg:
         cut = msg.index(tie_note)
