@@ -687,7 +687,10 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     if cam is None:
         cam = PinholeCamera(view.f, view.f, view.c[0], view.c[1], None, *(int(v) for v in image_size))
     q, pos_base = best["q"], best["pos"]
+    t2 = time.perf_counter()
     trust = assess_perspective(robot, best, w2, ~weak.observable & ~weak.relative, np.asarray(weak.relative, bool))
+    t_assess = time.perf_counter() - t2
+    timings["uncertainty"] = t_assess
     residual_px = _rms_per_frame(best["rn"], w2)
     cams, ts2 = view.weak_approximation(pos_base)
     w3 = np.isfinite(poses).all(-1).astype(float) * (1.0 if confidence is None else confidence)
