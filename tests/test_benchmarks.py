@@ -31,6 +31,8 @@ SMALLEST = {
     "bench_static_camera.py": (["--set", "tune", "--quick", "--frames", "40"], "| tune | straight | 0 | 1 |"),
     # render, find the markers and track their centres on 4 frames; the two joint fits would take 30 s more
     "bench_video.py": (["--quick", "--frames", "4", "--no-fit"], "| milling_arm | 640x480 | 4 |"),
+    # --quick times 1,000 and 10,000 frames, each for a second per method and thread count (23 s)
+    "bench_speed.py": (["--sizes", "500"], "| 500 |"),
 }
 # bench_batch.py starts two Dask clusters and a fresh process (tens of seconds even --quick): its pieces
 # are run here instead (test_batch_benchmark_recordings)

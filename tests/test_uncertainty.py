@@ -139,11 +139,10 @@ def test_uncertainty_round_trips_through_save_and_load_and_shows_in_the_report(f
 
 
 def test_a_pinhole_fit_is_assessed_too_and_a_wrist_flip_that_moves_no_point_is_ambiguous(arm):
-    """The perspective fit reported no deviation and no alternative: a wrist turned half a turn (the
-    next joint mirrored) moves no tracked point, so perspective cannot settle it either (the Kinova's
-    176-179 degree wrists in bench_full_range were reported observable). Here the assessment of a
-    pinhole fit, on the true motion and camera."""
-    from chainspace.robot.uncertainty import assess_perspective
+    """A wrist turned half a turn (the next joint mirrored) moves no tracked point, so perspective
+    cannot settle it either (the Kinova's 176-179 degree wrists in bench_full_range were reported
+    observable). Here the pinhole fit's assessment (perspective._trust), on the true motion and camera."""
+    from chainspace.robot.perspective import _trust
     from chainspace.robot.views import _PinholeView
 
     chain, robot = arm
@@ -155,17 +154,20 @@ def test_a_pinhole_fit_is_assessed_too_and_a_wrist_flip_that_moves_no_point_is_a
     tracks = trial.intrinsics.undistort(trial.tracks)
     w = np.ones(tracks.shape[:2])
     free = np.ones((6, robot.nv), bool)
+    free[0, 0] = False  # the first joint: a turn of the camera imitates it
     rn = np.linalg.norm(view.apply(trial.positions)[0] - tracks, axis=-1)
-    best = dict(q=trial.q, view=view, free=free, delta=None, prior=None, start=dict(free_prior=free),
-                var=float(np.mean(rn ** 2) / 2), tracks=tracks, objective=float((rn ** 2).sum()))
-    best["fits"] = [best]
-    relative = np.arange(robot.nv) == 0  # the first joint: a turn of the camera imitates it
-    trust = assess_perspective(robot, best, w, np.zeros(robot.nv, bool), relative)
-    assert trust["q_std"].shape == (6, robot.nv) and np.isfinite(trust["q_std"]).all()
-    assert 0.5 < trust["noise_px"] < 2.0
-    assert trust["ambiguous"].tolist() == [False, False, False, True, True, True]
-    assert "ambiguous: joint_a4" in trust["notes"][0]
-    assert min(a["score"] for a in trust["alternatives"]) < 1.0  # the exact twin fits as well
+    pos = view.apply(trial.positions)[0]
+    best = dict(q=trial.q, view=view, rn=rn, pos=pos, conv=True, n_iter=0, free=free, delta=None, prior=None,
+                objective=float((rn ** 2).sum()),
+                start=dict(free_prior=free, px_floor=0.0, blind=np.zeros(robot.nv, bool),
+                           gauge=np.arange(robot.nv) == 0))
+    for search in (False, True):
+        trust = _trust(robot, best, [best], tracks, w, search_ties=search)
+        assert trust["q_std"].shape == (6, robot.nv) and np.isfinite(trust["q_std"]).all()
+        assert 0.5 < trust["noise_px"] < 2.0
+        assert trust["ambiguous"].tolist() == [False, False, False, True, True, True]
+        assert "ambiguous: joint_a4" in trust["notes"][0]
+        assert min(a["score"] for a in trust["alternatives"]) < 1.0  # the exact twin fits as well
 
 
 def test_ties_with_the_winner_count_when_a_restart_found_a_lower_minimum_of_the_same_motion(arm):

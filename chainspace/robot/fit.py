@@ -118,6 +118,12 @@ does not beat weak perspective's squared residuals by 25 noise variances (a like
 the tracks carry no measurable perspective (a far camera, a long lens): the weak-perspective fit is
 reported, ``message`` says so, and ``focal_px``/``focal_std_px`` hold what was estimated.
 
+The perspective fit says how sure it is as the weak one does (``q_std``, ``noise_px``,
+``alternatives``, ``ambiguous``: :func:`chainspace.robot.uncertainty.assess_fit`), with the static
+pinhole camera (rotation, translation and, when estimated, log f) eliminated from the covariance by
+the Schur complement; the other starts' perspective fits are the candidates for alternatives, and the
+weak fit's ambiguity notes, which perspective re-decides, are dropped.
+
 Observability (the rule)
 ------------------------
 A joint is observable when moving it moves some tracked point in a way no change of camera (or, in
@@ -167,7 +173,7 @@ from .starts import _fit_3d, _initial_camera, _sequential_ik
 from .observability import _fill_unseen, _gauge_directions, _hold, _notes, _structural, _unseen
 from .candidates import FACE_ON_DEG, TIE_VARIANCES, _same_motion, _face_on_planes, _frame_ranges, _nearest_rest_branch, _viterbi_reanchored
 from .selection import _most_probable, _prefer_rest, view_side_valid
-from .uncertainty import assess_fit, assess_perspective
+from .uncertainty import assess_fit
 
 __all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"]
 
@@ -249,6 +255,7 @@ def fit_joint_angles(
     speed_decay_s: float | None = None,
     intrinsics: Any = None,
     image_size: tuple[float, float] | None = None,
+    search_ties: bool = False,
     _starts: list | None = None,
     _assess: bool = True,
 ) -> JointFit:
@@ -307,6 +314,11 @@ def fit_joint_angles(
         (principal point at the image centre) and reported with its standard deviation; where the tracks
         carry no measurable perspective the weak-perspective fit is kept and ``message`` says so.
         Neither given: weak perspective only.
+    search_ties
+        Also search beyond the fit's own candidates for motions that fit the tracks as well (depth flips
+        refitted to the tracks, the best other continuous branch frame by frame, restarts with each joint
+        shifted by ``uncertainty.SHAKE_DEG``), and report those found in ``alternatives``/``ambiguous``.
+        Slow (several times the fit: a refit per joint and sign); off by default.
 
     Returns
     -------
@@ -337,7 +349,7 @@ def fit_joint_angles(
     if intrinsics is not None or image_size is not None:
         return _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter,
                                 tol, loss_scale_px, mirror, view_from, fps, accel_std, speed_decay_s, intrinsics,
-                                image_size)
+                                image_size, search_ties)
     poses, chain, urdf, tracks, confidence = _inputs(rec_or_poses, urdf, chain, tracks, confidence)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -562,7 +574,7 @@ def fit_joint_angles(
         t2 = time.perf_counter()
         # (not for the weak start of a pinhole fit with known intrinsics, which is assessed itself)
         trust = assess_fit(robot, r, scored, tie_var, tracks, w2, prior, blind, gauge, seen_from_wrong_side,
-                           side_why if view_from is not None else "") if _assess else {}
+                           side_why if view_from is not None else "", search=search_ties) if _assess else {}
         timings["uncertainty"] = time.perf_counter() - t2
         converged = conv2  # the 3D stage only started this one
         residual_px = _rms_per_frame(rn, w2)
@@ -621,7 +633,7 @@ def fit_joint_angles(
 
 def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter, tol,
                      loss_scale_px, mirror, view_from, fps, accel_std, speed_decay_s, intrinsics,
-                     image_size) -> JointFit:
+                     image_size, search_ties=False) -> JointFit:
     """fit_joint_angles with a pinhole camera (module docstring, "Perspective")."""
     from ..cameras.pinhole import PinholeCamera, as_camera
     from .perspective import refine_perspective
@@ -658,7 +670,8 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
                                 # known intrinsics: perspective chooses among the candidates, so the weak
                                 # fit's smoothed choice among them is skipped (the perspective fit is smoothed)
                                 accel_std=accel_std if cam is None else None,
-                                speed_decay_s=speed_decay_s, _starts=starts, _assess=cam is None)
+                                speed_decay_s=speed_decay_s, search_ties=search_ties, _starts=starts,
+                                _assess=cam is None)
     robot = weak.kinematics()
     weak_msg = weak.message.removeprefix("the solver stopped before it converged; ")
     w2 = np.isfinite(tracks_u).all(-1).astype(float) * (1.0 if confidence is None else confidence)
@@ -671,7 +684,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     t1 = time.perf_counter()
     best = refine_perspective(robot, distinct, tracks_u, w2, None if cam is None else cam.K, image_size, accel_std,
                               fps, speed_decay_s, _unseen(robot, w2), max_iter, tol, weak_sse,
-                              accel_std is not None)
+                              accel_std is not None, search_ties)
     timings = dict(weak.timings, perspective=time.perf_counter() - t1)
     focal = best.get("focal")
     focal_std = best.get("focal_std")
@@ -687,10 +700,6 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     if cam is None:
         cam = PinholeCamera(view.f, view.f, view.c[0], view.c[1], None, *(int(v) for v in image_size))
     q, pos_base = best["q"], best["pos"]
-    t2 = time.perf_counter()
-    trust = assess_perspective(robot, best, w2, ~weak.observable & ~weak.relative, np.asarray(weak.relative, bool))
-    t_assess = time.perf_counter() - t2
-    timings["uncertainty"] = t_assess
     residual_px = _rms_per_frame(best["rn"], w2)
     cams, ts2 = view.weak_approximation(pos_base)
     w3 = np.isfinite(poses).all(-1).astype(float) * (1.0 if confidence is None else confidence)
@@ -701,9 +710,9 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         s = s if transform == "similarity" else 1.0
     positions = s * pos_base @ R.T + t
     residual_3d = _rms_per_frame(np.linalg.norm(positions - np.nan_to_num(poses), axis=-1), w3)
-    # the weak fit's ambiguity (and why its camera-side rule did not apply) is replaced by the pinhole fit's
-    msg = "; ".join(n for n in weak_msg.split("; ") if not n.startswith(("ambiguous: ", "the reported one is a guess",
-                                                                           "the tracked points hang below")))
+    # the weak fit's ambiguities are perspective's to settle: its own (trust) notes replace them
+    msg = "; ".join(m for m in weak_msg.split("; ") if not m.startswith(
+        ("ambiguous: ", "the reported one is a guess (fit.alternatives)", "the tracked points hang")))
     tie_note = "; the motion and its mirror image fit the data equally well (weak perspective)"
     if tie_note in msg:
         cut = msg.index(tie_note)
@@ -713,9 +722,10 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     if best["n_alternatives"]:
         msg += ("; perspective chose among the weak-perspective fit and its mirror/flip alternatives"
                 + ("" if best["settled"] else " (within the noise: a guess)"))
-    msg += "".join("; " + n for n in trust["notes"])
     if focal is not None:
         msg += f"; focal length estimated: {focal:.1f} +- {focal_std:.1f} px"
+    trust = best["trust"]  # q_std, noise_px, alternatives, ambiguous (chainspace.robot.uncertainty)
+    msg += "".join("; " + n for n in trust["notes"])
     converged = np.broadcast_to(np.asarray(best["conv"], bool), (len(q),)).copy()
     if not converged.all():
         msg = "the solver stopped before it converged; " + msg

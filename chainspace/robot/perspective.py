@@ -2,7 +2,8 @@
 focal length estimated) fitted with the joint angles on the reprojection error in pixels, started from
 the weak-perspective fit's winner and its mirror/flip alternatives (see :mod:`chainspace.robot.fit`).
 Perspective then decides the depth mirrors the weak fit left open: under the winner's camera the
-other starts' branches beyond each joint are tried on the winner's arm (:func:`_grafted`).
+other starts' branches beyond each joint are tried on the winner's arm (:func:`_grafted`). The
+winner's standard deviations and alternatives: :func:`_trust`.
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ def _camera_covariance(robot: RobotKinematics, q: np.ndarray, view: _PinholeView
 def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.ndarray, w: np.ndarray,
                        K: np.ndarray | None, image_size, accel_std: float | None, fps: float,
                        speed_decay_s: float | None, unseen: np.ndarray, max_iter: int, tol: float,
-                       weak_sse: float, smooth: bool) -> dict:
+                       weak_sse: float, smooth: bool, search_ties: bool = False) -> dict:
     """Fit the pinhole camera and joint angles from each weak-perspective start, and from the best
     graft of the others onto the winner (:func:`_grafted`); keep the lowest objective.
 
@@ -97,13 +98,13 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
             out = new
         objective = _robust(out[2], w, delta)
         prior = None
-        if smooth and accel_std is not None and robot.euclidean and F >= 3:
+        if smooth and accel_std is not None and F >= 3:
             sigma = max(_noise_sigma(out[2], w), 1e-3)
             mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
             prior = _motion_prior(unseen, mu, np.inf if speed_decay_s is None else speed_decay_s * float(fps))
             out = _smooth_lm(robot, robot.continuous(out[0]), tr, w, out[1], st["free_prior"], ones, max_iter, tol,
                              delta, prior)
-            objective = _smoothed_objective(prior, out[0], out[2], w, delta)
+            objective = _smoothed_objective(prior, robot.angles(out[0]), out[2], w, delta)
         return dict(q=out[0], view=out[1], rn=out[2], pos=out[3], conv=out[4], n_iter=out[5] + n_iter,
                     objective=objective, sse=float((w * out[2] ** 2).sum()), free=st["free"], delta=delta,
                     prior=prior, start=st)
@@ -149,10 +150,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     best["n_alternatives"] = len(others)
     best["var"] = var
     best["measured"], best["reason"] = True, ""
-    if aspect != 1.0:  # back to the tracks' pixel rows
-        pass
     best["aspect"] = aspect
-    best["fits"], best["tracks"] = fits, tr  # every start's fit, for the alternatives (uncertainty.assess_perspective)
     if fit_focal:
         cov = _camera_covariance(robot, best["q"], best["view"], tr, w, best["free"], best["delta"], var)
         f = best["view"].f
@@ -168,7 +166,25 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
             best["reason"] = (f"perspective does not fit the tracks measurably better than weak perspective "
                               f"(squared residuals {best['sse']:.4g} against {weak_sse:.4g} px^2, noise "
                               f"variance {var:.3g} px^2: no measurable perspective)")
+    if best["measured"]:  # else the weak fit is reported, with its own
+        best["trust"] = _trust(robot, best, fits, tr, w, search_ties)
     return best
+
+
+def _trust(robot: RobotKinematics, best: dict, fits: list[dict], tracks: np.ndarray, w: np.ndarray,
+           search_ties: bool = False) -> dict:
+    """What the perspective fit knows (:func:`chainspace.robot.uncertainty.assess_fit`): per-frame joint
+    standard deviations with the static pinhole camera (pose, and the focal when fitted: the view's
+    parameters) eliminated, the measured pixel noise, and the other starts' fits that tie with the
+    winner as alternatives. Perspective decides the camera side, so no camera-side rule sets one aside."""
+    from .uncertainty import assess_fit
+
+    st = best["start"]
+    best["out"] = (best["q"], best["view"], best["rn"], best["pos"], best["conv"], best["n_iter"])
+    best["free_prior"] = st["free_prior"]
+    var = max(_noise_sigma(best["rn"], w), st["px_floor"]) ** 2
+    return assess_fit(robot, best, [(r["objective"], r) for r in fits], var, tracks, w, best["prior"], st["blind"],
+                      st["gauge"], lambda r: False, "", search=search_ties)
 
 
 def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], tracks: np.ndarray,
@@ -181,11 +197,9 @@ def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], track
     placed for another branch) ends in a poor minimum even when its wrist is on the right side of the
     depth mirror. Under the winner's camera, the wrist branch that perspective prefers is then found
     by its objective (xArm7, K known, seed 0: 491.5 -> 265.3, the true motion's own minimum; wrist
-    joints 120 / 83 / 101 -> 0.8 / 0.9 / 2.2 degrees). Only for robots whose q are angles
-    (``robot.euclidean``): elsewhere columns of q are not joints.
+    joints 120 / 83 / 101 -> 0.8 / 0.9 / 2.2 degrees). Tails are swapped per joint angle
+    (:meth:`RobotKinematics.angles`), so a continuous joint's (cos, sin) moves as one.
     """
-    if not robot.euclidean:
-        return None
     view, free, delta = best["view"], best["free"], best["delta"]
     ones = np.ones(view.n_params, bool)
 
@@ -195,13 +209,16 @@ def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], track
 
     base = refit(best["q"])[1]
     winner = None
+    a_best = robot.angles(best["q"])
     for q in others:
-        for k in range(1, robot.nq):
-            if np.abs(_wrapped(robot, q - best["q"])[:, k:]).max() < 0.05:
+        a = robot.angles(q)
+        d = np.where(robot.turns_v, (a - a_best + np.pi) % (2 * np.pi) - np.pi, a - a_best)
+        for k in range(1, robot.nv):
+            if np.abs(d[:, k:]).max() < 0.05:
                 break  # the same tail from here on: nothing new for this or larger k
-            q0 = best["q"].copy()
-            q0[:, k:] = q[:, k:]
-            q1, obj = refit(q0)
+            a0 = a_best.copy()
+            a0[:, k:] = a[:, k:]
+            q1, obj = refit(robot.from_angles(a0))
             if obj < base - 1e-3 * abs(base):  # not a rounding-level tie
                 base, winner = obj, q1
     return winner

@@ -173,7 +173,7 @@ def ambiguous_joints(robot: RobotKinematics, angles: np.ndarray, alternatives: l
 
 def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict]], var: float,
                tracks: np.ndarray, w: np.ndarray, prior, blind: np.ndarray, gauge: np.ndarray, wrong_side,
-               side_why: str) -> dict:
+               side_why: str, search: bool = False) -> dict:
     """What the fit knows and does not: ``q_std`` (F, nv) (NaN where a joint is held: not observable,
     or unseen without the motion prior; 0 for a joint seen relative to frame 0, in frame 0),
     ``noise_px`` (the measured pixel noise), ``alternatives`` (:func:`alternatives_of`; ``scored``
@@ -182,7 +182,10 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
 
     ``winner``: the reported fit (``out``, ``q``, ``free``/``free_prior``, ``delta``); ``prior``: the
     motion prior it was smoothed with, or None; ``wrong_side(fit)``: the camera-side rule, True where
-    it validly sets a fit aside; ``side_why``: why that rule does not apply here ("" when it does)."""
+    it validly sets a fit aside; ``side_why``: why that rule does not apply here ("" when it does).
+    ``search``: also look beyond the fit's candidates (:func:`_exact_flips` refitted and
+    :func:`_other_branch`, :func:`_shaken`): the ``search_ties`` of ``fit_joint_angles``, off by default
+    because it costs several fits."""
     q, view = winner["out"][0], winner["out"][1]
     rel = gauge & ~blind
     free = (winner["free_prior"] if prior is not None else winner["free"]).copy()
@@ -194,8 +197,9 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     std[0, rel] = 0.0  # by definition: the joint is reported as its change since frame 0
     std[:, blind] = np.nan
     sigma = float(np.sqrt(var))
-    scored = list(scored) + _exact_flips(robot, winner, scored, tracks, w, prior, free, sigma) + \
-        _shaken(robot, winner, scored, tracks, w, prior, free, ~rel)
+    scored = list(scored) + _exact_flips(robot, winner, scored, tracks, w, prior, free, sigma, search)
+    if search:
+        scored += _shaken(robot, winner, scored, tracks, w, prior, free, ~rel)
     alts = alternatives_of(robot, winner, scored, sigma, lambda x: "camera side" if "down" in x and wrong_side(x) else None)
     ambiguous, worst = ambiguous_joints(robot, robot.angles(q), alts, ~blind, rel)
     notes = []
@@ -209,23 +213,8 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     return dict(q_std=std, noise_px=noise, alternatives=alts, ambiguous=ambiguous, ambiguity_deg=worst, notes=notes)
 
 
-def assess_perspective(robot: RobotKinematics, best: dict, w: np.ndarray, blind: np.ndarray,
-                       gauge: np.ndarray) -> dict:
-    """:func:`assess_fit` for the pinhole fit (``best``: :func:`chainspace.robot.perspective.refine_perspective`'s
-    winner, with every start's fit in ``best["fits"]`` and the tracks it fitted in ``best["tracks"]``):
-    standard deviations under the pinhole camera, and as alternatives the other starts' fits that tie on
-    the perspective objective and the winner's exact depth-flip twins. Perspective settles the depth
-    mirror, so no camera-side rule sets an alternative aside here; but a flip that moves no tracked
-    point (a wrist turned half a turn, the next joint mirrored) is no better settled by perspective than
-    by weak perspective, and without this the pinhole fit reported it observable."""
-    winner = dict(best, out=(best["q"], best["view"]), free_prior=best["start"]["free_prior"])
-    scored = [(r["objective"], winner if r is best else r) for r in best["fits"]]
-    return assess_fit(robot, winner, scored, best["var"], best["tracks"], w, best["prior"], blind, gauge,
-                      lambda r: False, "")
-
-
 def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict]], tracks: np.ndarray,
-                 w: np.ndarray, prior, free: np.ndarray, sigma: float) -> list[tuple[float, dict]]:
+                 w: np.ndarray, prior, free: np.ndarray, sigma: float, refit: bool = True) -> list[tuple[float, dict]]:
     """The winner's twins, scored as ``scored`` is: per link, the motion with that link and everything
     beyond it mirrored in depth (and the joints from each one on started from the other side of the
     rest pose), fitted to the winner's points frame by frame
@@ -238,7 +227,8 @@ def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float,
     Why the refit: under weak perspective a depth mirror projects exactly as the winner does, but under
     a pinhole camera it is off by a few pixels until its joints are adjusted to the tracks; scored as
     mirrored it lost by far more than the tie tolerance, and the xArm7's wrist (joint5 127 degrees off,
-    the wrong branch fitting the tracks as well as the true one) was reported observable."""
+    the wrong branch fitting the tracks as well as the true one) was reported observable. ``refit``
+    False (the default assessment, cheap): the mirrored motions are scored as they are."""
     from .candidates import _depth_flips, _same_motion
     from .solver import _sequence_lm, _smooth_lm, _smoothed_objective
 
@@ -251,10 +241,17 @@ def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float,
             return float((w * rn ** 2).sum())
         return _smoothed_objective(prior, robot.angles(qa), rn, w, delta)
 
+    base = next((s for s, x in scored if x is winner), min((s for s, _ in scored), default=0.0))
+
+    def residuals(qa):
+        return np.linalg.norm(view.apply(robot.positions(qa))[0] - np.nan_to_num(tracks), axis=-1)
+
+    own = objective(q, residuals(q))
+    flips = _depth_flips(robot, q, view, free)
+    if not refit:  # scored as mirrored: exact under weak perspective, a few pixels off under a pinhole
+        return [(base + objective(m, residuals(m)) - own, {"q": m}) for m in flips]
     # and the best other continuous branch (_other_branch), refined and scored alike
-    flips = _depth_flips(robot, q, view, free) + [b["q"] for b in _other_branch(robot, winner, tracks, w, free, sigma)]
-    if not flips:
-        return []
+    flips += [b["q"] for b in _other_branch(robot, winner, tracks, w, free, sigma)]
     distinct: list[np.ndarray] = []
     for m in flips:  # many links give the same twin: each is refitted once
         if not any(_same_motion(robot, m, o) for o in distinct + [q]):
@@ -271,8 +268,6 @@ def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float,
         ones = np.ones(view.n_params, bool)
         fits = [_smooth_lm(robot, m, tracks, w, view, free, ones, 20, 1e-8, delta, prior) for m in distinct]
         qs, rn = np.stack([f[0] for f in fits]), np.stack([f[2] for f in fits])
-    base = next((s for s, x in scored if x is winner), min((s for s, _ in scored), default=0.0))
-    own = objective(q, np.linalg.norm(view.apply(robot.positions(q))[0] - np.nan_to_num(tracks), axis=-1))
     return [(base + objective(qs[k], rn[k]) - own, {"q": qs[k]}) for k in range(K)]
 
 
