@@ -25,7 +25,7 @@ ROWS = {
 LIMIT_DEG = 2.0
 
 
-def run(robots, seeds: int, n_frames: int, progress=None) -> list[dict]:
+def run(robots, seeds: int, n_frames: int, progress=None, search_ties: bool = False) -> list[dict]:
     from chainspace.io.descriptions import example_robot_urdf
     from chainspace.io.urdf import from_urdf
     from chainspace.reconstruction.pipeline import reconstruct
@@ -44,7 +44,8 @@ def run(robots, seeds: int, n_frames: int, progress=None) -> list[dict]:
             t0 = time.perf_counter()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                fit = fit_joint_angles(reconstruct(trial.tracks, chain, seed=seed), fps=trial.fps)
+                fit = fit_joint_angles(reconstruct(trial.tracks, chain, seed=seed), fps=trial.fps,
+                                       search_ties=search_ties)
             secs += time.perf_counter() - t0
             for j in validate(fit, trial.q).joints:
                 if j["status"] in ("observable", "relative to frame 0"):
@@ -82,13 +83,15 @@ def main(argv=None) -> int:
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--frames", type=int, default=30)
     p.add_argument("--quick", action="store_true", help="the quadruped leg, one seed, 10 frames (a smoke run)")
+    p.add_argument("--search-ties", action="store_true",
+                   help="fit_joint_angles(search_ties=True): also search beyond the fit's candidates (slow)")
     a = p.parse_args(argv)
     if a.quick:
         a.robots, a.seeds, a.frames = ["quadruped leg"], 1, 10
     if a.seeds < 1 or a.frames < 3:
         p.error("--seeds >= 1 and --frames >= 3 are needed")
     try:
-        rows = run(a.robots, a.seeds, a.frames, lambda m: print(m, file=sys.stderr, flush=True))
+        rows = run(a.robots, a.seeds, a.frames, lambda m: print(m, file=sys.stderr, flush=True), a.search_ties)
     except Exception as exc:  # example-robot-data missing: say so, exit non-zero (no empty table)
         from chainspace.errors import ChainspaceError
 

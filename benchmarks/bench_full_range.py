@@ -28,6 +28,8 @@ def main(argv=None) -> int:
                         "static (weak perspective)")
     p.add_argument("--frames", type=int, default=None, help="frames per run (default 60; --quick 20)")
     p.add_argument("--seeds", type=int, default=1)
+    p.add_argument("--search-ties", action="store_true",
+                   help="fit_joint_angles(search_ties=True): also search beyond the fit's candidates (slow)")
     p.add_argument("--quick", action="store_true", help="milling arm and UR5, full range from above, 20 frames")
     p.add_argument("--json", default=None, help="also write every run to this JSON file (refuses to overwrite)")
     p.add_argument("--from-json", nargs="+", default=None, help="print the table of runs saved with --json")
@@ -46,6 +48,7 @@ def main(argv=None) -> int:
         runs = [r for f in a.from_json for r in json.loads(Path(f).read_text())]
     else:
         runs = run_full_range(robots, settings, camera=a.camera, n_frames=frames, seeds=a.seeds,
+                              search_ties=a.search_ties,
                               progress=lambda m: print(m, file=sys.stderr, flush=True),
                               on_run=save if a.json else None)
     print(format_full_range(runs, camera=a.camera, n_frames=frames))

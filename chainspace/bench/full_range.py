@@ -110,7 +110,7 @@ def _film(chain: Any, setting: str, camera: str, n_frames: int, seed: int):
     return synthesize(chain, n_frames=n_frames, noise_px=1.0, seed=seed, camera=camera, **SETTINGS[setting])
 
 
-def _fit(chain: Any, trial: Any, seed: int):
+def _fit(chain: Any, trial: Any, seed: int, search_ties: bool = False):
     from ..reconstruction.pipeline import reconstruct
     from ..robot.fit import fit_joint_angles
 
@@ -118,12 +118,12 @@ def _fit(chain: Any, trial: Any, seed: int):
         warnings.simplefilter("ignore")
         rec = reconstruct(trial.tracks, chain, seed=seed)
         if trial.intrinsics is None:
-            return fit_joint_angles(rec)
-        return fit_joint_angles(rec, tracks=trial.tracks, intrinsics=trial.intrinsics)
+            return fit_joint_angles(rec, search_ties=search_ties)
+        return fit_joint_angles(rec, tracks=trial.tracks, intrinsics=trial.intrinsics, search_ties=search_ties)
 
 
 def run_full_range(robots: Sequence[str] = ROBOTS, settings: Sequence[str] = DEFAULT_SETTINGS, *,
-                   camera: str = "pinhole", n_frames: int = 60, seeds: int = 1,
+                   camera: str = "pinhole", n_frames: int = 60, seeds: int = 1, search_ties: bool = False,
                    progress: Callable[[str], None] | None = None,
                    on_run: Callable[[list[dict[str, Any]]], None] | None = None) -> list[dict[str, Any]]:
     """One row per run (robot, setting, seed): robot, setting, seed, outcome ("fit", "refused",
@@ -148,7 +148,7 @@ def run_full_range(robots: Sequence[str] = ROBOTS, settings: Sequence[str] = DEF
                 row = dict(robot=name, setting=setting, seed=seed, reach_mm=1000 * reach)
                 try:
                     trial = _film(chain, setting, camera, n_frames, seed)
-                    fit = _fit(chain, trial, seed)
+                    fit = _fit(chain, trial, seed, search_ties)
                     row.update(outcome="fit", joints=judge_joints(fit, trial),
                                error_3d_mm=_error_3d_mm(fit, trial), note=fit.message)
                 except Exception as exc:

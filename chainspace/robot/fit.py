@@ -81,7 +81,7 @@ variances of the best: a likelihood-ratio test), applies these rules:
   plane; legs or a hanging limb do not). What the rules could not settle validly is reported, not
   hidden: ``fit.alternatives`` (the tied motions, the reported motion's exact depth-flip twins
   included) and ``fit.ambiguous`` (joints where one differs by more than
-  ``uncertainty.AMBIGUOUS_DEG`` = 5 degrees RMS); ``fit.q_std`` gives per-frame standard deviations
+  ``uncertainty.AMBIGUOUS_DEG`` = 2 degrees RMS); ``fit.q_std`` gives per-frame standard deviations
   from the fit's Gauss-Newton covariance (:mod:`chainspace.robot.uncertainty`).
 * *Singularities.* Where two joint axes align (a wrist stretched straight; a 7-axis arm's upper arm
   along its first axis) only the sum of their angles is seen, and a path may continue on either
@@ -255,7 +255,9 @@ def fit_joint_angles(
     speed_decay_s: float | None = None,
     intrinsics: Any = None,
     image_size: tuple[float, float] | None = None,
+    search_ties: bool = False,
     _starts: list | None = None,
+    _assess: bool = True,
 ) -> JointFit:
     """Fit the robot's joint angles to a reconstruction (and its 2D tracks).
 
@@ -312,6 +314,11 @@ def fit_joint_angles(
         (principal point at the image centre) and reported with its standard deviation; where the tracks
         carry no measurable perspective the weak-perspective fit is kept and ``message`` says so.
         Neither given: weak perspective only.
+    search_ties
+        Also search beyond the fit's own candidates for motions that fit the tracks as well (depth flips
+        refitted to the tracks, the best other continuous branch frame by frame, restarts with each joint
+        shifted by ``uncertainty.SHAKE_DEG``), and report those found in ``alternatives``/``ambiguous``.
+        Slow (several times the fit: a refit per joint and sign); off by default.
 
     Returns
     -------
@@ -342,7 +349,7 @@ def fit_joint_angles(
     if intrinsics is not None or image_size is not None:
         return _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter,
                                 tol, loss_scale_px, mirror, view_from, fps, accel_std, speed_decay_s, intrinsics,
-                                image_size)
+                                image_size, search_ties)
     poses, chain, urdf, tracks, confidence = _inputs(rec_or_poses, urdf, chain, tracks, confidence)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -565,8 +572,9 @@ def fit_joint_angles(
             tie_var = max(r["sse"] / max(r["n_obs"], 1), (0.05 * px_floor) ** 2)
             scored = [(x["sse"], x) for x in results]
         t2 = time.perf_counter()
+        # (not for the weak start of a pinhole fit with known intrinsics, which is assessed itself)
         trust = assess_fit(robot, r, scored, tie_var, tracks, w2, prior, blind, gauge, seen_from_wrong_side,
-                           side_why if view_from is not None else "")
+                           side_why if view_from is not None else "", search=search_ties) if _assess else {}
         timings["uncertainty"] = time.perf_counter() - t2
         converged = conv2  # the 3D stage only started this one
         residual_px = _rms_per_frame(rn, w2)
@@ -625,7 +633,7 @@ def fit_joint_angles(
 
 def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter, tol,
                      loss_scale_px, mirror, view_from, fps, accel_std, speed_decay_s, intrinsics,
-                     image_size) -> JointFit:
+                     image_size, search_ties=False) -> JointFit:
     """fit_joint_angles with a pinhole camera (module docstring, "Perspective")."""
     from ..cameras.pinhole import PinholeCamera, as_camera
     from .perspective import refine_perspective
@@ -662,7 +670,8 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
                                 # known intrinsics: perspective chooses among the candidates, so the weak
                                 # fit's smoothed choice among them is skipped (the perspective fit is smoothed)
                                 accel_std=accel_std if cam is None else None,
-                                speed_decay_s=speed_decay_s, _starts=starts)
+                                speed_decay_s=speed_decay_s, search_ties=search_ties, _starts=starts,
+                                _assess=cam is None)
     robot = weak.kinematics()
     weak_msg = weak.message.removeprefix("the solver stopped before it converged; ")
     w2 = np.isfinite(tracks_u).all(-1).astype(float) * (1.0 if confidence is None else confidence)
@@ -675,7 +684,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     t1 = time.perf_counter()
     best = refine_perspective(robot, distinct, tracks_u, w2, None if cam is None else cam.K, image_size, accel_std,
                               fps, speed_decay_s, _unseen(robot, w2), max_iter, tol, weak_sse,
-                              accel_std is not None)
+                              accel_std is not None, search_ties)
     timings = dict(weak.timings, perspective=time.perf_counter() - t1)
     focal = best.get("focal")
     focal_std = best.get("focal_std")

@@ -51,7 +51,7 @@ def _camera_covariance(robot: RobotKinematics, q: np.ndarray, view: _PinholeView
 def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.ndarray, w: np.ndarray,
                        K: np.ndarray | None, image_size, accel_std: float | None, fps: float,
                        speed_decay_s: float | None, unseen: np.ndarray, max_iter: int, tol: float,
-                       weak_sse: float, smooth: bool) -> dict:
+                       weak_sse: float, smooth: bool, search_ties: bool = False) -> dict:
     """Fit the pinhole camera and joint angles from each weak-perspective start, and from the best
     graft of the others onto the winner (:func:`_grafted`); keep the lowest objective.
 
@@ -167,11 +167,12 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
                               f"(squared residuals {best['sse']:.4g} against {weak_sse:.4g} px^2, noise "
                               f"variance {var:.3g} px^2: no measurable perspective)")
     if best["measured"]:  # else the weak fit is reported, with its own
-        best["trust"] = _trust(robot, best, fits, tr, w)
+        best["trust"] = _trust(robot, best, fits, tr, w, search_ties)
     return best
 
 
-def _trust(robot: RobotKinematics, best: dict, fits: list[dict], tracks: np.ndarray, w: np.ndarray) -> dict:
+def _trust(robot: RobotKinematics, best: dict, fits: list[dict], tracks: np.ndarray, w: np.ndarray,
+           search_ties: bool = False) -> dict:
     """What the perspective fit knows (:func:`chainspace.robot.uncertainty.assess_fit`): per-frame joint
     standard deviations with the static pinhole camera (pose, and the focal when fitted: the view's
     parameters) eliminated, the measured pixel noise, and the other starts' fits that tie with the
@@ -183,7 +184,7 @@ def _trust(robot: RobotKinematics, best: dict, fits: list[dict], tracks: np.ndar
     best["free_prior"] = st["free_prior"]
     var = max(_noise_sigma(best["rn"], w), st["px_floor"]) ** 2
     return assess_fit(robot, best, [(r["objective"], r) for r in fits], var, tracks, w, best["prior"], st["blind"],
-                      st["gauge"], lambda r: False, "")
+                      st["gauge"], lambda r: False, "", search=search_ties)
 
 
 def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], tracks: np.ndarray,
