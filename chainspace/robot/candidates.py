@@ -46,7 +46,9 @@ def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray,
     between consecutive frames longer than ``free_step`` (rad; 4.5 rad/s at 30 fps, more than robots
     move) the excess squared over ``step``^2, plus a whisker of distance to the rest pose that decides
     exact ties: a jump to another branch is costly, while of two continuous paths that fit alike
-    (a wrist's planar tool mirrored in depth) the one nearer the rest pose wins. Returns q (F, nq).
+    (a wrist's planar tool mirrored in depth) the one nearer the rest pose wins. A start still more
+    than :data:`PRUNE_VARIANCES` noise variances worse than its frame's best after a few solver steps
+    stops where it is (it takes part in the search as it stands). Returns q (F, nq).
     """
     F, nq = q.shape
     rng = np.random.default_rng(seed)
