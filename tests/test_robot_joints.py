@@ -227,35 +227,3 @@ def test_repeated_and_meeting_starts_are_solved_once_with_the_same_answers():
         assert np.allclose(rn[i], alone[k][2][0], atol=1e-3)  # px
         assert np.allclose(pos[i], robot.positions(q[i])[0], atol=1e-12)
     assert np.array_equal(q[8], q[0]) and np.array_equal(q[9], q[5]) and np.array_equal(q[10], q[5])
-
-
-def test_pruned_starts_stop_far_from_the_best_and_leave_the_others_alone():
-    """The branch search's shortcut: with ``prune``, a start still worse than the best start of its
-    frame by more than ``prune`` after a few steps stops there; every other start gets exactly what it
-    gets without pruning (the best one of each frame included)."""
-    from chainspace.robot.kinematics import _random_q
-    from chainspace.robot.solver import _sequence_lm
-    from chainspace.robot.views import _View, _rotvec
-
-    path = shipped_path("milling_arm")
-    robot = RobotKinematics(path, from_urdf(path))
-    rng = np.random.default_rng(3)
-    truth = _random_q(robot, rng, 3)
-    view = _View(np.array([500.0]), _rotvec(np.array([0.3, -0.2, 0.1]))[None], np.array([[400.0, 300.0]]),
-                 np.zeros(3, int))
-    u = view.apply(robot.positions(truth))[0] + rng.normal(0, 1.0, (3, robot.chain.n_joints, 2))
-    K = 8  # per frame: the truth nudged, and random starts, some of which wander
-    starts = np.concatenate([robot.clip(truth + 0.05)] + [_random_q(robot, rng, 3) for _ in range(K - 1)])
-    rows = np.tile(np.arange(3), K)
-    args = (robot, starts, u[rows], np.ones((len(rows), robot.chain.n_joints)), view.take(rows),
-            np.ones((len(rows), robot.nv), bool), np.zeros(6, bool), 30, 1e-10, None)
-    q_all, _, rn_all, _, _, _ = _sequence_lm(*args)
-    prune = 400.0  # px^2: 400 noise variances at 1 px
-    q, _, rn, _, _, _ = _sequence_lm(*args, prune=prune)
-    sse, sse_all = (rn ** 2).sum(1), (rn_all ** 2).sum(1)
-    lowest = np.array([sse[rows == f].min() for f in range(3)])[rows]
-    same = np.all(np.abs(q - q_all) < 1e-9, axis=1)
-    assert (~same).any(), "no start was pruned: the test shows nothing"
-    assert (sse[~same] > lowest[~same] + prune).all()  # the pruned ones stopped far from the best
-    for f in range(3):  # the best fit of every frame is untouched
-        assert np.isclose(sse[rows == f].min(), sse_all[rows == f].min(), rtol=1e-9)

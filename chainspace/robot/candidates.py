@@ -19,11 +19,6 @@ from .observability import _hold
 # * distance to rest: kinematics._rest_distance (summed absolute wrapped offsets from the rest pose).
 TIE_VARIANCES = 25.0
 DISTINCT_RAD = 0.05
-# The branch search stops a frame's start whose squared residuals still exceed the best start's of that
-# frame by this many noise variances after a few steps (solver._PRUNE_AFTER): 16 times the tie
-# tolerance, a 20-sigma misfit that only a jump between branches of more than about 2 rad could repay
-# in the search's cost; such starts are wandering between basins, and were most of its late work.
-PRUNE_VARIANCES = 400.0
 
 
 def _same_motion(robot: RobotKinematics, qa: np.ndarray, qb: np.ndarray) -> bool:
@@ -46,9 +41,7 @@ def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray,
     between consecutive frames longer than ``free_step`` (rad; 4.5 rad/s at 30 fps, more than robots
     move) the excess squared over ``step``^2, plus a whisker of distance to the rest pose that decides
     exact ties: a jump to another branch is costly, while of two continuous paths that fit alike
-    (a wrist's planar tool mirrored in depth) the one nearer the rest pose wins. A start still more
-    than :data:`PRUNE_VARIANCES` noise variances worse than its frame's best after a few solver steps
-    stops where it is (it takes part in the search as it stands). Returns q (F, nq).
+    (a wrist's planar tool mirrored in depth) the one nearer the rest pose wins. Returns q (F, nq).
     """
     F, nq = q.shape
     rng = np.random.default_rng(seed)
@@ -60,8 +53,7 @@ def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray,
     q0 = np.concatenate(starts)
     idx = np.tile(np.arange(F), K)
     qs, _, rn, _, _, _ = _sequence_lm(robot, q0, target[idx], w[idx], view.take(idx), free[idx],
-                                      np.zeros(view.n_params, bool), 30, 1e-8, None,
-                                      prune=PRUNE_VARIANCES * max(sigma, 1e-12) ** 2)
+                                      np.zeros(view.n_params, bool), 30, 1e-8, None)
     qs = qs.reshape(K, F, nq)
     data = (w[idx] * rn ** 2).sum(1).reshape(K, F) / max(sigma, 1e-12) ** 2
     data += 0.05 * np.abs(_wrapped(robot, qs - robot.q_rest)).sum(-1)
@@ -196,11 +188,8 @@ def _depth_flips(robot: RobotKinematics, q: np.ndarray, view: _View, free: np.nd
     starts = partial + [q] * len(mirrored)
     K = len(targets)
     eye = _View.identity(K * F)
-    # a start still 5 % of the reach (RMS) from the points after a few steps is no exact other branch
-    # (those reach them to rounding): it goes on as a start of the search from where it is
     qs = _sequence_lm(robot, np.concatenate(starts), np.concatenate(targets), np.ones((K * F, pos.shape[1])), eye,
-                      np.tile(free, (K, 1)), np.zeros(7, bool), 30, 1e-8, None,
-                      prune=pos.shape[1] * (0.05 * robot.reach()) ** 2)[0]
+                      np.tile(free, (K, 1)), np.zeros(7, bool), 30, 1e-8, None)[0]
     return list(qs.reshape(K, F, -1))
 
 

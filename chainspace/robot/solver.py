@@ -159,12 +159,8 @@ def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.
     return q, view, np.linalg.norm(res, axis=-1), pos, np.full(F, converged), it
 
 
-_PRUNE_AFTER = 10  # iterations before _sequence_lm's ``prune`` applies: time for most starts to settle
-
-
 def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
-                 free: np.ndarray, free_view: np.ndarray, max_iter: int, tol: float, delta: float | None,
-                 prune: float | None = None):
+                 free: np.ndarray, free_view: np.ndarray, max_iter: int, tol: float, delta: float | None):
     """Levenberg-Marquardt on all frames' joint angles and the view(s) against target (F, J, D).
 
     The normal equations have one (nv x nv) block per frame and one small block per view; the views are
@@ -172,11 +168,8 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
     pass and small batched solves. When the frames are independent (the view fixed, or one view per
     frame) each frame keeps its own damping and accepts its own steps, and converged frames drop out.
     free (F, nv) / free_view (3 + 1 + D,) mask the directions allowed to move; a robust Huber loss
-    (IRLS) with threshold delta (None: squares). ``prune`` (independent frames only): from iteration
-    :data:`_PRUNE_AFTER` on, a row whose cost exceeds the lowest cost of its problem (the rows with the
-    same target, weights and free directions: a branch search's starts of one frame) by more than
-    ``prune`` stops where it is. Returns (q, view, residual norms (F, J), base-frame positions (F, J, 3),
-    converged (F,), iterations).
+    (IRLS) with threshold delta (None: squares). Returns (q, view, residual norms (F, J), base-frame
+    positions (F, J, 3), converged (F,), iterations).
     """
     F, J, D = target.shape
     nv, nc = robot.nv, view.n_params
@@ -189,7 +182,7 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
         if len(first) < 0.95 * F:
             inverse = inverse.reshape(-1)
             q1, _, rn1, pos1, conv1, it1 = _sequence_lm(robot, q[first], target[first], w[first], view.take(first),
-                                                        free[first], free_view, max_iter, tol, delta, prune)
+                                                        free[first], free_view, max_iter, tol, delta)
             return q1[inverse], view, rn1[inverse], pos1[inverse], conv1[inverse], it1
         problem = np.unique(key[:, q.shape[1]:], axis=0, return_inverse=True)[1].reshape(-1)
     else:
@@ -261,13 +254,6 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
             active[a[~better][lam[a[~better]] > 1e10]] = False
         elif done.all():
             active[:] = False
-        if problem is not None and prune is not None and it >= _PRUNE_AFTER:
-            # a start still far from the best fit of its frame after that many steps is wandering
-            # between basins (the late rows of a branch search are nearly all such): it could only
-            # win the search through a branch jump costlier than ``prune``
-            lowest = np.full(problem.max() + 1, np.inf)
-            np.minimum.at(lowest, problem, cost)
-            active &= cost <= lowest[problem] + prune
         if problem is not None and it in (3, 6, 10, 15, 21):
             # starts of one problem that have met (within a micro-radian) go on as one: a branch
             # search's many starts fall into a few basins
