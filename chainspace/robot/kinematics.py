@@ -280,11 +280,17 @@ class RobotKinematics:
         # point, on the joints that carry it; for all points and frames at once. One Pinocchio call per
         # point and frame cost more than the kinematics themselves.
         pos = self._points(R, p)
-        lin, a, p = spatial[:, None, :3], spatial[:, None, 3:], pos[..., None]
-        # lin + ang x pos, by components (np.cross's axis juggling cost as much as the kinematics)
-        jac = lin + np.stack([a[:, :, 1] * p[:, :, 2] - a[:, :, 2] * p[:, :, 1],
-                              a[:, :, 2] * p[:, :, 0] - a[:, :, 0] * p[:, :, 2],
-                              a[:, :, 0] * p[:, :, 1] - a[:, :, 1] * p[:, :, 0]], 2)
+        a, p = spatial[:, None, 3:], pos[..., None]
+        # lin + ang x pos, by components written in place (np.cross's axis juggling, or a stack of the
+        # components, cost as much as the kinematics)
+        jac = np.empty((len(q), pos.shape[1], 3, spatial.shape[2]))
+        np.multiply(a[:, :, 1], p[:, :, 2], out=jac[:, :, 0])
+        jac[:, :, 0] -= a[:, :, 2] * p[:, :, 1]
+        np.multiply(a[:, :, 2], p[:, :, 0], out=jac[:, :, 1])
+        jac[:, :, 1] -= a[:, :, 0] * p[:, :, 2]
+        np.multiply(a[:, :, 0], p[:, :, 1], out=jac[:, :, 2])
+        jac[:, :, 2] -= a[:, :, 1] * p[:, :, 0]
+        jac += spatial[:, None, :3]
         jac *= self._carried_by[:, None]
         return pos, (jac @ self._fold if self._mimic else jac)
 
@@ -313,6 +319,9 @@ class _BatchedKinematics:
     def __init__(self, parents, placements, kind, axis, idx_q, col, scaling, offset, nvx):
         self.parents, self.M, self.kind, self.axis = parents, placements, kind, axis
         self.idx_q, self.col, self.scaling, self.offset, self.nvx = idx_q, col, scaling, offset, nvx
+        # each axis's cross-product matrix K and K^2 (Rodrigues), made once rather than at every call
+        self.K = np.array([[[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]] for a in axis])
+        self.KK = self.K @ self.K
 
     @classmethod
     def of(cls, robot: RobotKinematics) -> "_BatchedKinematics | None":
@@ -380,9 +389,7 @@ class _BatchedKinematics:
             else:
                 th = self.scaling[j] * q[:, self.idx_q[j]] + self.offset[j]
                 c, s = np.cos(th), np.sin(th)
-            a = self.axis[j]
-            K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-            R[:, j] = A + s[:, None, None] * _right(A, K) + (1 - c)[:, None, None] * _right(A, K @ K)
+            R[:, j] = A + s[:, None, None] * _right(A, self.K[j]) + (1 - c)[:, None, None] * _right(A, self.KK[j])
         return R, p
 
     def world_jacobian(self, R: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -398,11 +405,11 @@ class _BatchedKinematics:
             if self.kind[j] == "prismatic":
                 J[:, :3, self.col[j]] = w
             else:
-                o = p[:, j]
-                J[:, :3, self.col[j]] = np.stack([o[:, 1] * w[:, 2] - o[:, 2] * w[:, 1],
-                                                  o[:, 2] * w[:, 0] - o[:, 0] * w[:, 2],
-                                                  o[:, 0] * w[:, 1] - o[:, 1] * w[:, 0]], -1)
-                J[:, 3:, self.col[j]] = w
+                o, c = p[:, j], self.col[j]
+                J[:, 0, c] = o[:, 1] * w[:, 2] - o[:, 2] * w[:, 1]
+                J[:, 1, c] = o[:, 2] * w[:, 0] - o[:, 0] * w[:, 2]
+                J[:, 2, c] = o[:, 0] * w[:, 1] - o[:, 1] * w[:, 0]
+                J[:, 3:, c] = w
         return J
 
 

@@ -88,6 +88,10 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
 
     def score(r, q, view):
         objective, out = smoothed(r, q, view)
+        if known(out[0]):
+            # smoothed back onto a motion already scored, whose branches were searched then: the
+            # search would find what it found before, and the motion keeps its place in the order
+            return
         for _ in range(2):  # the smoothed motion may still jump branches that a local step cannot undo
             q_b, view_b = rebranch(r, out)
             if _same_motion(robot, q_b, out[0]):

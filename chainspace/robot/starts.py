@@ -143,14 +143,32 @@ def _sequential_ik(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, view: _
     F = len(X)
     q = np.empty((F, robot.nq))
     prev = q_first
+    fixed_view = np.zeros(view.n_params, bool)
+    if q_alt is None and (free[1:] == free[1:2]).all() and (free[0] <= free[-1]).all():
+        # the directions held after frame 0 are held in every frame (frame 0 may hold more: a static
+        # camera's gauge joint), so they keep q_first's values all along and the starts from the rest
+        # pose's side do not depend on the path: they are solved for all frames at once, and the
+        # blocks wait only for the warm-started solves, which converge in a few steps
+        q_alt_fixed = _seeded(robot, np.broadcast_to(q_first, (F, robot.nq)), free)
+        alt_all = _sequence_lm(robot, q_alt_fixed, X, w, view, free, fixed_view, 30, 1e-8, None)
+    elif q_alt is not None:
+        alt_all = _sequence_lm(robot, q_alt, X, w, view, free, fixed_view, 30, 1e-8, None)
+    else:
+        alt_all = None
     for a in range(0, F, block):
         idx = np.arange(a, min(a + block, F))
         n = len(idx)
         both = np.concatenate([idx, idx])
-        alt = _seeded(robot, np.broadcast_to(prev, (n, robot.nq)), free[idx]) if q_alt is None else q_alt[idx]
-        q0 = np.concatenate([np.broadcast_to(prev, (n, robot.nq)), alt])
-        qs, _, rn, _, _, _ = _sequence_lm(robot, q0, X[both], w[both], view.take(both), free[both],
-                                          np.zeros(view.n_params, bool), 30, 1e-8, None)
+        if alt_all is None:
+            alt = _seeded(robot, np.broadcast_to(prev, (n, robot.nq)), free[idx])
+            q0 = np.concatenate([np.broadcast_to(prev, (n, robot.nq)), alt])
+            qs, _, rn, _, _, _ = _sequence_lm(robot, q0, X[both], w[both], view.take(both), free[both],
+                                              fixed_view, 30, 1e-8, None)
+        else:
+            alt = q_alt_fixed[idx] if q_alt is None else q_alt[idx]
+            qs, _, rn, _, _, _ = _sequence_lm(robot, np.array(np.broadcast_to(prev, (n, robot.nq))), X[idx], w[idx],
+                                              view.take(idx), free[idx], fixed_view, 30, 1e-8, None)
+            qs, rn = np.concatenate([qs, alt_all[0][idx]]), np.concatenate([rn, alt_all[2][idx]])
         err = np.sqrt((w[both] * rn ** 2).sum(1)).reshape(2, n)
         if q_alt is None:
             d = _rest_distance(robot, qs, prev, gauge).reshape(2, n)
