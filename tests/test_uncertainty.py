@@ -182,3 +182,19 @@ def test_ties_with_the_winner_count_when_a_restart_found_a_lower_minimum_of_the_
     scored = [(100.0, winner), (100.0, dict(q=twin)), (0.0, dict(q=lower))]
     alts = alternatives_of(robot, winner, scored, 1.0, lambda r: None)
     assert len(alts) == 1 and np.allclose(alts[0]["angles"][:, 3], np.pi) and alts[0]["score"] == 100.0
+
+
+def test_searching_for_ties_finds_at_least_what_the_default_assessment_finds():
+    """search_ties=True adds candidates (refitted flips, another branch, shifted restarts) to the same
+    assessment: the reported motion is the same, and every alternative of the default is still there."""
+    from chainspace.io.descriptions import example_robot_urdf
+    from chainspace.robot.fit import fit_joint_angles
+
+    chain = from_urdf(example_robot_urdf("double_pendulum"))  # two joints: the searches are few
+    trial = synthesize(chain, n_frames=8, noise_px=1.0, seed=3, camera="static")
+    fits = [fit_joint_angles(trial.positions, chain=chain, tracks=trial.tracks, fps=trial.fps, search_ties=s)
+            for s in (False, True)]
+    assert np.allclose(fits[0].q, fits[1].q)
+    assert len(fits[1].alternatives) >= len(fits[0].alternatives)
+    assert (fits[1].ambiguous >= fits[0].ambiguous).all()
+    assert np.isfinite(fits[1].q_std[:, fits[1].observable]).all()

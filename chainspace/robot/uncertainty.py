@@ -213,6 +213,28 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     return dict(q_std=std, noise_px=noise, alternatives=alts, ambiguous=ambiguous, ambiguity_deg=worst, notes=notes)
 
 
+def _scorer(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict]], tracks: np.ndarray,
+            w: np.ndarray, prior):
+    """``score(q, rn=None)``: a motion's objective on the scale of ``scored`` (the winner's entry plus the
+    difference of the two objectives under the winner's camera: the same robust loss, plus the motion
+    prior when there is one), so that a tie found by a search is a tie. ``rn`` (F, J) px: its
+    residuals, when a refit already has them."""
+    from .solver import _smoothed_objective
+
+    view, delta = winner["out"][1], winner["delta"]
+
+    def objective(qa, rn=None):
+        if rn is None:
+            rn = np.linalg.norm(view.apply(robot.positions(qa))[0] - np.nan_to_num(tracks), axis=-1)
+        if prior is None:
+            return float((w * rn ** 2).sum())
+        return _smoothed_objective(prior, robot.angles(qa), rn, w, delta)
+
+    base = next((s for s, x in scored if x is winner), min((s for s, _ in scored), default=0.0))
+    own = objective(winner["out"][0])
+    return lambda qa, rn=None: base + objective(qa, rn) - own
+
+
 def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict]], tracks: np.ndarray,
                  w: np.ndarray, prior, free: np.ndarray, sigma: float, refit: bool = True) -> list[tuple[float, dict]]:
     """The winner's twins, scored as ``scored`` is: per link, the motion with that link and everything
@@ -230,26 +252,16 @@ def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float,
     the wrong branch fitting the tracks as well as the true one) was reported observable. ``refit``
     False (the default assessment, cheap): the mirrored motions are scored as they are."""
     from .candidates import _depth_flips, _same_motion
-    from .solver import _sequence_lm, _smooth_lm, _smoothed_objective
+    from .solver import _sequence_lm, _smooth_lm
 
     q, view, delta = winner["out"][0], winner["out"][1], winner["delta"]
     if getattr(view, "per_frame", False) and prior is not None:
         return []
 
-    def objective(qa, rn):
-        if prior is None:
-            return float((w * rn ** 2).sum())
-        return _smoothed_objective(prior, robot.angles(qa), rn, w, delta)
-
-    base = next((s for s, x in scored if x is winner), min((s for s, _ in scored), default=0.0))
-
-    def residuals(qa):
-        return np.linalg.norm(view.apply(robot.positions(qa))[0] - np.nan_to_num(tracks), axis=-1)
-
-    own = objective(q, residuals(q))
+    score = _scorer(robot, winner, scored, tracks, w, prior)
     flips = _depth_flips(robot, q, view, free)
     if not refit:  # scored as mirrored: exact under weak perspective, a few pixels off under a pinhole
-        return [(base + objective(m, residuals(m)) - own, {"q": m}) for m in flips]
+        return [(score(m), {"q": m}) for m in flips]
     # and the best other continuous branch (_other_branch), refined and scored alike
     flips += [b["q"] for b in _other_branch(robot, winner, tracks, w, free, sigma)]
     distinct: list[np.ndarray] = []
@@ -268,7 +280,7 @@ def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float,
         ones = np.ones(view.n_params, bool)
         fits = [_smooth_lm(robot, m, tracks, w, view, free, ones, 20, 1e-8, delta, prior) for m in distinct]
         qs, rn = np.stack([f[0] for f in fits]), np.stack([f[2] for f in fits])
-    return [(base + objective(qs[k], rn[k]) - own, {"q": qs[k]}) for k in range(K)]
+    return [(score(qs[k], rn[k]), {"q": qs[k]}) for k in range(K)]
 
 
 SHAKE_DEG = 20.0  # each observable joint's path shifted by this much either way: starts for other local minima
@@ -287,22 +299,15 @@ def _shaken(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict
     perspective, seed 0): the winner 8-14 degrees off on two shoulder joints with a reported std of
     0.4 degrees, and the true motion's basin 11 noise variances *lower*, reached from a shift of 20
     degrees of one joint; neither was in the fit's candidate set, so nothing was flagged."""
-    from .solver import _sequence_lm, _smooth_lm, _smoothed_objective
-    from .views import _View, _camera_view
+    from .solver import _sequence_lm, _smooth_lm
+    from .views import _camera_view, _View
 
     q, view, delta = winner["out"][0], winner["out"][1], winner["delta"]
     if getattr(view, "per_frame", False):
         return []
     weak = isinstance(view, _View)
     ones = np.ones(view.n_params, bool)
-    base = next((s for s, x in scored if x is winner), min((s for s, _ in scored), default=0.0))
-
-    def objective(qa, rn):
-        if prior is None:
-            return float((w * rn ** 2).sum())
-        return _smoothed_objective(prior, robot.angles(qa), rn, w, delta)
-
-    own = objective(q, np.linalg.norm(view.apply(robot.positions(q))[0] - np.nan_to_num(tracks), axis=-1))
+    score = _scorer(robot, winner, scored, tracks, w, prior)
     out = []
     for k in np.flatnonzero(free.any(0) & shake):
         for sign in (1.0, -1.0):
@@ -317,7 +322,7 @@ def _shaken(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict
                 res = _sequence_lm(robot, q0, tracks, w, v0, free, ones, 50, 1e-8, delta)
             else:
                 res = _smooth_lm(robot, robot.continuous(q0), tracks, w, v0, free, ones, 50, 1e-8, delta, prior)
-            out.append((base + objective(res[0], res[2]) - own, {"q": res[0]}))
+            out.append((score(res[0], res[2]), {"q": res[0]}))
     return out
 
 
