@@ -11,8 +11,8 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 
-# Rendered clips (the demo's video) are cached in one folder that every test worker shares, so the
-# demo test and the browser test render the 40-frame clip once; never the user's own cache.
+# Rendered clips (the demo's video) are cached in one folder that every test worker shares, so a clip
+# that several tests film is rendered once; never the user's own cache.
 os.environ.setdefault("CHAINSPACE_CACHE", str(Path(tempfile.gettempdir()) / "chainspace-test-cache"))
 
 

@@ -85,7 +85,9 @@ def test_browser_opens_the_demo_viewer(tmp_path):
     from chainspace.cli import app
 
     out = tmp_path / "demo"
-    result = CliRunner().invoke(app, ["demo", "--out", str(out), "--frames", "40"])
+    # 12 frames: the viewer is what is tested here (test_demo judges the 40-frame fit); a 40-frame demo
+    # took 74 s of the suite's 10-minute budget when this test rendered the clip itself
+    result = CliRunner().invoke(app, ["demo", "--out", str(out), "--frames", "12"])
     assert result.exit_code in (0, 1), result.output  # 1: it ran and says validation failed
     html = out / "viewer.html"
     assert html.exists(), f"the demo wrote no viewer.html ({sorted(os.listdir(out))})"
