@@ -228,8 +228,12 @@ def _fit_summary(fit: Any) -> dict[str, Any]:
     q = np.asarray(fit.q)
     scale = getattr(fit, "scale", None)
     scale = float(scale) if scale is not None and np.isfinite(scale) and float(scale) > 0 else None
-    relative = np.asarray(getattr(fit, "relative", None) if getattr(fit, "relative", None) is not None
-                          else np.zeros(0, bool), dtype=bool).reshape(-1)
+    def flagged(attr: str) -> list[str]:
+        """The joint names where the fit's per-joint flags ``attr`` are set (none when it has none)."""
+        value = getattr(fit, attr, None)
+        flags = np.zeros(0, bool) if value is None else np.asarray(value, dtype=bool).reshape(-1)
+        return [n for n, f in zip(fit.joint_names, flags, strict=False) if f]
+
     return {
         "kind": "joint_fit",
         "urdf_path": getattr(fit, "urdf_path", None),
@@ -248,10 +252,8 @@ def _fit_summary(fit: Any) -> dict[str, Any]:
         "focal_std_px": getattr(fit, "focal_std_px", None),
         "pinhole": getattr(fit, "camera_pose", None) is not None,
         "residual_px": stats(respx, 1.0),
-        "relative_to_frame_0": [n for n, r in zip(fit.joint_names, relative, strict=False) if r],
-        "ambiguous": [n for n, a in zip(fit.joint_names, np.asarray(getattr(fit, "ambiguous", None) if
-                                                                    getattr(fit, "ambiguous", None) is not None
-                                                                    else [], bool).reshape(-1), strict=False) if a],
+        "relative_to_frame_0": flagged("relative"),
+        "ambiguous": flagged("ambiguous"),
         "noise_px": (float(fit.noise_px) if getattr(fit, "noise_px", None) is not None and np.isfinite(fit.noise_px)
                      else None),
         "q_std_median": (None if getattr(fit, "q_std", None) is None else
