@@ -11,6 +11,14 @@ from ..chain import KinematicChain
 from .kinematics import RobotKinematics
 
 
+def joint_flags(fit: Any, attr: str, n: int) -> np.ndarray:
+    """(n,) bool: the fit's per-joint flags ``attr`` (such as ``ambiguous``); all False when the fit has
+    none, or not one per joint (a fit saved before they existed)."""
+    value = getattr(fit, attr, None)
+    flags = np.zeros(0, bool) if value is None else np.asarray(value, dtype=bool)
+    return flags if flags.shape == (n,) else np.zeros(n, bool)
+
+
 @dataclass
 class JointFit:
     """Joint angles fitted to a robot's motion.

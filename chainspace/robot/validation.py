@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DescriptionError, TrackError
+from .result import joint_flags
 
 __all__ = ["ValidationReport", "validate", "DEFAULT_THRESHOLDS", "BONES_NOTE"]
 
@@ -225,9 +226,7 @@ def _joint_errors(robot, fit, q, tq) -> list[dict[str, Any]]:
     names = list(fit.joint_names) if len(fit.joint_names) == robot.nv else list(robot.joint_names)
     relative = np.asarray(getattr(fit, "relative", np.zeros(len(names), bool)), bool)
     observable = np.asarray(fit.observable, bool)
-    ambiguous = np.asarray(getattr(fit, "ambiguous", None) if getattr(fit, "ambiguous", None) is not None
-                           else np.zeros(0, bool), bool)
-    ambiguous = ambiguous if ambiguous.shape == (len(names),) else np.zeros(len(names), bool)
+    ambiguous = joint_flags(fit, "ambiguous", len(names))
     std = getattr(fit, "q_std", None)
     std = np.asarray(std, float) if std is not None and np.shape(std) == (len(q), len(names)) else None
     amb_reason = next((m.strip() for m in str(getattr(fit, "message", "")).split("; ") if m.startswith("ambiguous")),

@@ -116,9 +116,9 @@ def plot_joint_angles(fit: Any, truth_q: Any, path: str | os.PathLike, *, fps: f
     std = np.asarray(std, float) if std is not None and np.shape(std) == q.shape else None
     alternatives = [np.asarray(a["angles"], float) for a in getattr(fit, "alternatives", None) or []
                     if np.shape(a.get("angles")) == q.shape]
-    ambiguous = np.asarray(getattr(fit, "ambiguous", None) if getattr(fit, "ambiguous", None) is not None
-                           else np.zeros(0, bool), dtype=bool)
-    ambiguous = ambiguous if ambiguous.shape == (len(names),) else np.zeros(len(names), bool)
+    from ..robot.result import joint_flags
+
+    ambiguous = joint_flags(fit, "ambiguous", len(names))
     ncols = 2 if len(pick) > 3 else 1
     nrows = math.ceil(len(pick) / ncols)
     fig, axes = _figure(nrows, ncols, figsize=(6.4 * ncols / 1.3, 1.9 * nrows + 0.6), sharex=True)
