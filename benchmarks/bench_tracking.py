@@ -129,27 +129,10 @@ def run(width: int, height: int, n_frames: int, every: int, folder: Path, window
 
 def plot_errors(rows: list[dict], path: Path) -> None:
     """Tracking error against the truth over the frames, one panel per video, key frames marked."""
-    import matplotlib
+    from chainspace.bench.tracking import plot_track_errors
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    runs = [r for r in rows if "curves" in r]
-    fig, axes = plt.subplots(len(runs), 1, figsize=(8, 2.2 * len(runs)), squeeze=False, sharex=True)
-    for ax, r in zip(axes[:, 0], runs, strict=True):
-        names, err, anchors = r["curves"]
-        for j, name in enumerate(names):
-            ax.plot(err[:, j], lw=1, label=name)
-        for f in anchors:
-            ax.axvline(f, color="grey", ls=":", lw=1)
-        ax.set_ylabel("error (px)")
-        how = "ECC refined" if r["refine"] else "LK only"
-        ax.set_title(f"{r['size']}, window {r['window']} px, {how} (dotted: key frames; a gap: lost)", fontsize=9)
-    axes[-1, 0].set_xlabel("frame")
-    axes[0, 0].legend(fontsize=7, ncol=3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    plot_track_errors([(f"{r['size']}, window {r['window']} px, {'ECC refined' if r['refine'] else 'LK only'}",
+                        *r["curves"]) for r in rows if "curves" in r], path)
 
 
 def format_table(rows: list[dict], every: int) -> str:

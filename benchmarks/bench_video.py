@@ -8,9 +8,12 @@ markers' centre tracks alone with the known intrinsics, reconstructs and fits th
 (:func:`chainspace.reconstruct`, :func:`chainspace.fit_joint_angles`). Reported per row: render time
 per frame, the share of the markers seen whole (by the renderer's truth) that were found, their
 corner error against the rendered truth (px RMS and worst), the worst joint RMS error (degrees) and
-the 3D error (mm). Then the markers' centres are tracked (:func:`chainspace.track_points`) from one
-key frame at frame 0 that places the markers the renderer shows whole there (its truth, as a user
-would click them): track RMS error against the rendered centres (px, over the frames where the
+the 3D error (mm). Then the markers' centres are tracked (:func:`chainspace.track_points`) from key
+frames every ``--keyframe-every`` frames (default 100: frames 0, 100 and 200 of a 300-frame clip; 0:
+frame 0 only), each placing the markers the renderer shows whole there at their rendered centres (what
+the tracker is judged on; ``--click-px`` adds Gaussian error per coordinate, as a user's clicks in
+``chainspace pick`` would) and skipping ("not visible", ``null``) those placed before that it no
+longer shows whole: track RMS error against the rendered centres (px, over the frames where the
 marker is shown whole and the track has a position), the lost share, the tracking speed, the joints
 fitted from those tracks alone, and which tracks pass 1.5 px first and when.
 
@@ -26,7 +29,9 @@ times as long (12 s a frame against 3.3 on the 2-core machine). The table gives 
 
 Command: ``python benchmarks/bench_video.py`` (300 frames, every row; ``--frames 40`` for a short run,
 ``--rows milling_arm:640x480`` to pick rows; ``--quick``: the milling arm at 640 x 480, 6 frames;
-``--no-fit``: markers and tracks only).
+``--no-fit``: markers and tracks only; ``--plot FILE``: the track errors over the frames; ``--keep
+DIR`` keeps the clips and renders again only a clip whose kept truth is not this row's motion, seed
+and supersampling).
 """
 
 from __future__ import annotations
@@ -49,7 +54,7 @@ def _urdf(robot: str) -> Path:
 
 
 def run_row(robot: str, size: tuple[int, int], n_frames: int, seed: int, folder: Path, fit: bool = True,
-            supersample: int = 2) -> dict:
+            supersample: int = 2, keyframe_every: int = 100, click_px: float = 0.0) -> dict:
     from chainspace.errors import ChainspaceError
     from chainspace.io.urdf import from_urdf
     from chainspace.synthetic.robot import synthesize
@@ -65,9 +70,12 @@ def run_row(robot: str, size: tuple[int, int], n_frames: int, seed: int, folder:
     trial = synthesize(chain, n_frames=n_frames, camera="pinhole", noise_px=0.0, seed=seed, trajectory="milling",
                        image_size=size, distance_reaches=1.5)
     clip = folder / f"{robot}_{size[0]}x{size[1]}.mp4"
-    res = render_trial(trial, clip, markers=mmap, seed=seed, supersample=supersample, overwrite=True,
-                       progress=True)  # plain lines in a log: the time a long row takes shows early
-    row = {"robot": robot, "size": f"{size[0]}x{size[1]}", "frames": n_frames, "render_s": res.seconds_per_frame,
+    render_s = float("nan")  # a kept clip of this very motion is not rendered again
+    if not _kept(clip, trial, seed, supersample):
+        res = render_trial(trial, clip, markers=mmap, seed=seed, supersample=supersample, overwrite=True,
+                           progress=True)  # plain lines in a log: the time a long row takes shows early
+        render_s = res.seconds_per_frame
+    row = {"robot": robot, "size": f"{size[0]}x{size[1]}", "frames": n_frames, "render_s": render_s,
            "supersample": supersample}
     if mmap is None:
         return row
@@ -85,8 +93,44 @@ def run_row(robot: str, size: tuple[int, int], n_frames: int, seed: int, folder:
     idx = [found.names.index(n) for n in mchain.joints]
     if fit:
         row.update(_joints(found.centres[:, idx], found.confidence[:, idx], mchain, urdf, trial, size, seed))
-    row.update({f"track_{k}": v for k, v in _track_row(clip, truth, mmap, urdf, trial, size, seed, fit).items()})
+    row.update({f"track_{k}": v for k, v in _track_row(clip, truth, mmap, urdf, trial, size, seed, fit,
+                                                        keyframe_every, click_px).items()})
     return row
+
+
+def _kept(clip: Path, trial, seed: int, supersample: int) -> bool:
+    """Whether ``clip`` is already the rendering of ``trial`` (same motion, seed and supersampling)."""
+    from chainspace.errors import ChainspaceError
+    from chainspace.video.render import load_truth
+
+    if not clip.exists():
+        return False
+    try:
+        truth = load_truth(clip)
+    except (ChainspaceError, OSError, KeyError, ValueError):  # no or unreadable truth: render again
+        return False
+    return (truth["q"].shape == trial.q.shape and np.allclose(truth["q"], trial.q) and int(truth["seed"]) == seed
+            and int(truth["supersample"]) == supersample)
+
+
+def _keyframes(centres: np.ndarray, visible: np.ndarray, names: list[str], every: int, click_px: float,
+               seed: int) -> dict:
+    """Key frames as a user clicks them: every ``every`` frames (0: frame 0 only), each marker the
+    renderer shows whole there at its centre (px) plus ``click_px`` Gaussian error per coordinate, and
+    the markers placed before that are no longer shown whole skipped (None)."""
+    rng = np.random.default_rng(seed)
+    frames = range(0, len(centres), every) if every > 0 else [0]
+    kf: dict[int, dict] = {}
+    placed: set[str] = set()
+    for f in frames:
+        kf[f] = {}
+        for m, name in enumerate(names):
+            if visible[f, m]:
+                kf[f][name] = [float(v) for v in centres[f, m] + click_px * rng.standard_normal(2)]
+                placed.add(name)
+            elif name in placed:
+                kf[f][name] = None
+    return kf
 
 
 def _joints(tracks, conf, mchain, urdf, trial, size, seed) -> dict:
@@ -104,27 +148,30 @@ def _joints(tracks, conf, mchain, urdf, trial, size, seed) -> dict:
             "error_3d_mm": rep.error_3d_mm}
 
 
-def _track_row(clip: Path, truth: dict, mmap, urdf, trial, size, seed, fit: bool = True) -> dict:
-    """Track the markers' centres with :func:`chainspace.track_points` from one key frame at frame 0 (the
-    renderer's truth for the markers it shows whole there, as a user would click them); error against
-    the rendered centres where the renderer shows the marker whole; joints from those tracks."""
+def _track_row(clip: Path, truth: dict, mmap, urdf, trial, size, seed, fit: bool = True, keyframe_every: int = 100,
+               click_px: float = 0.0) -> dict:
+    """Track the markers' centres with :func:`chainspace.track_points` from key frames placed as a user
+    clicks them (:func:`_keyframes`); error against the rendered centres where the renderer shows the
+    marker whole; joints from those tracks."""
     from chainspace import track_points
     from chainspace.video.markers import centre_of, marker_chain
 
     names = mmap.names
     centres = centre_of(truth["marker_corners"])  # (F, M, 2) px
     vis = truth["marker_visible"]
-    start = {n: [float(v) for v in centres[0, m]] for m, n in enumerate(names) if vis[0, m]}
-    tr = track_points(clip, {0: start})
+    kf = _keyframes(centres, vis, names, keyframe_every, click_px, seed)
+    tr = track_points(clip, kf)
     cols = [names.index(n) for n in tr.names]
     err = np.linalg.norm(tr.tracks - centres[:, cols], axis=-1)  # NaN where lost
     judged = vis[:, cols] & np.isfinite(err)
-    out = {"points": len(tr.names), "fps": tr.n_frames / tr.seconds, "lost_pct": 100.0 * tr.lost_fraction,
+    out = {"points": len(tr.names), "keyframes": len(kf), "click_px": click_px, "fps": tr.n_frames / tr.seconds,
+           "lost_pct": 100.0 * tr.lost_fraction,
            "rms_px": float(np.sqrt((err[judged] ** 2).mean())) if judged.any() else float("nan"),
            "drift": "-"}
     # what drifts and when: the points whose error passes the target, by the frame it first does
     over = judged & (err > TARGET_TRACK_PX)
     first = {tr.names[j]: int(np.argmax(over[:, j])) for j in range(len(tr.names)) if over[:, j].any()}
+    out["curves"] = (list(tr.names), np.where(judged, err, np.nan), sorted(kf))
     if first:
         worst = min(first, key=first.get)
         out["drift"] = f"{len(first)} of {len(tr.names)} pass {TARGET_TRACK_PX} px; first {worst} at frame {first[worst]}"
@@ -150,12 +197,20 @@ def missed(r: dict) -> list[str]:
     return [name for name, ok in checks if not ok]  # NaN compares False: counted as missed
 
 
+def _points(r: dict) -> str:
+    """Tracked points, key frames and the clicks' error, e.g. "6 (3; clicks 0.5 px)"."""
+    if "track_points" not in r:
+        return "-"
+    click = f"; clicks {r['track_click_px']:g} px" if r.get("track_click_px") else ""
+    return f"{r['track_points']} ({r['track_keyframes']}{click})"
+
+
 def format_table(rows: list[dict]) -> str:
     def f(v, fmt):
         return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else format(v, fmt)
 
     lines = ["| robot | image | frames | render s/frame (supersample) | markers found % | corner RMS px (<= 0.5) "
-             "| corner worst px | worst joint RMS deg (<= 1.5) | 3D error mm | tracked points | track RMS px (<= 1.5) | lost % "
+             "| corner worst px | worst joint RMS deg (<= 1.5) | 3D error mm | tracked points (key frames) | track RMS px (<= 1.5) | lost % "
              "| tracking frames/s (>= 60) | worst joint RMS from tracks deg (<= 1.5) | targets |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -166,7 +221,7 @@ def format_table(rows: list[dict]) -> str:
                      f"{f(r['render_s'], '.2f')} (x{r.get('supersample', 2)}) | "
                      f"{f(r.get('found_pct'), '.0f')} | {f(r.get('corner_rms_px'), '.2f')} | "
                      f"{f(r.get('corner_max_px'), '.2f')} | {f(r.get('joint_deg'), '.2f')} | "
-                     f"{f(r.get('error_3d_mm'), '.1f')} | {r.get('track_points', '-')} | "
+                     f"{f(r.get('error_3d_mm'), '.1f')} | {_points(r)} | "
                      f"{f(r.get('track_rms_px'), '.2f')} | {f(r.get('track_lost_pct'), '.1f')} | "
                      f"{f(r.get('track_fps'), '.0f')} | {f(r.get('track_joint_deg'), '.2f')} | {verdict} |")
     drifts = [f"- {r['robot']} {r['size']}: {r['track_drift']}" for r in rows if "track_drift" in r]
@@ -187,6 +242,11 @@ def main(argv: list[str] | None = None) -> int:
                     "(default: 2 up to 1280 px wide, 1 above: aliasing is a matter of pixels, and 3840 x 2160 "
                     "renders cost 3.5 times 1920 x 1080)")
     ap.add_argument("--no-fit", action="store_true", help="markers and tracks only, no joint fits (a smoke run)")
+    ap.add_argument("--keyframe-every", type=int, default=100,
+                    help="frames between the key frames that place the tracked points (0: frame 0 only)")
+    ap.add_argument("--plot", type=Path, help="write each row's track error over the frames as a PNG")
+    ap.add_argument("--click-px", type=float, default=0.0,
+                    help="Gaussian error added to each key-frame point, px per coordinate (a user's click)")
     args = ap.parse_args(argv)
     if args.quick:
         args.frames, args.rows = min(args.frames, 6), args.rows or ["milling_arm:640x480"]
@@ -199,9 +259,16 @@ def main(argv: list[str] | None = None) -> int:
         for robot, size in rows:
             t0 = time.perf_counter()
             ss = args.supersample or (2 if size[0] <= 1280 else 1)
-            out.append(run_row(robot, size, args.frames, args.seed, folder, fit=not args.no_fit, supersample=ss))
+            out.append(run_row(robot, size, args.frames, args.seed, folder, fit=not args.no_fit, supersample=ss,
+                               keyframe_every=args.keyframe_every, click_px=args.click_px))
             print(f"{robot} {size[0]}x{size[1]}: {time.perf_counter() - t0:.0f} s", flush=True)
     print(format_table(out))
+    if args.plot:
+        from chainspace.bench.tracking import plot_track_errors
+
+        plot_track_errors([(f"{r['robot']} {r['size']}, marker centres", *r["track_curves"]) for r in out
+                           if "track_curves" in r], args.plot)
+        print(f"wrote {args.plot}")
     return 1 if any(missed(r) for r in out) else 0
 
 
