@@ -118,3 +118,20 @@ def test_robustness_targets_judge_joints_and_failed_runs():
     assert not res["milling arm: no cliff in the random sweep (worst joint RMS)"]  # the flipped wrist
     assert not res["milling arm: no silent flip (a joint > 90 deg off, reported observable)"]
     assert find_cliffs([0, 1, 2], [5.0, 6.0, np.inf])["cliff"][-1]  # a failed run is a cliff
+
+
+def test_uncertainty_model_check_ranks_a_trial_among_draws_from_its_covariance():
+    check = _main("bench_uncertainty.py").__globals__["_model_check"]
+    rng = np.random.default_rng(0)
+    n = 120
+    G = rng.normal(size=(n, n))
+    cov = 0.2 * G @ G.T / n + 0.8 * np.full((n, n), 1.0) + 0.1 * np.eye(n)  # one shared direction, as a camera
+    std = np.sqrt(np.diag(cov))
+    honest = np.linalg.cholesky(cov) @ rng.normal(size=n)
+    res = check(honest, std, cov, seed=1)
+    assert 0.5 < res["chi2_dof"] < 1.5 and 0.0 <= res["model_rank"] <= 1.0
+    lo, mid, hi = res["model_shares"]
+    assert lo < 0.5 and hi > 0.8  # a shared direction spreads a trial's share widely
+    assert check(np.zeros(n), std, cov, seed=1)["model_rank"] > 0.9  # every error inside: above the draws
+    flipped = check(10 * std * (-1) ** np.arange(n), std, cov, seed=1)  # far off, across the shared direction
+    assert flipped["model_rank"] < 0.05 and flipped["chi2_dof"] > 10  # all outside: below (nearly) every draw

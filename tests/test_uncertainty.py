@@ -11,7 +11,8 @@ from chainspace.robot.kinematics import RobotKinematics
 from chainspace.robot.observability import _unseen
 from chainspace.robot.selection import view_side_valid
 from chainspace.robot.solver import _motion_prior, _normal_equations
-from chainspace.robot.uncertainty import _block_tridiagonal_inverse_diagonal, ambiguous_joints, joint_std
+from chainspace.robot.uncertainty import (_block_tridiagonal_inverse_diagonal, ambiguous_joints, joint_covariance,
+                                         joint_std)
 from chainspace.robot.views import _camera_view
 from chainspace.synthetic.robot import synthesize
 
@@ -198,3 +199,24 @@ def test_searching_for_ties_finds_at_least_what_the_default_assessment_finds():
     assert len(fits[1].alternatives) >= len(fits[0].alternatives)
     assert (fits[1].ambiguous >= fits[0].ambiguous).all()
     assert np.isfinite(fits[1].q_std[:, fits[1].observable]).all()
+
+
+def test_joint_covariance_is_the_full_matrix_whose_diagonal_joint_std_reports(arm):
+    # the benchmark's check of a trial's correlated errors rests on this matrix: its diagonal must be
+    # q_std's (the camera marginalised, the prior's coupling of frames included)
+    chain, robot = arm
+    trial = synthesize(chain, n_frames=6, noise_px=1.0, seed=3, camera="static")
+    w = np.ones(trial.tracks.shape[:2])
+    view = _camera_view(trial.positions, trial.tracks, w, False)
+    free = np.ones((6, robot.nv), bool)
+    free[0, 0] = False
+    prior = _motion_prior(_unseen(robot, w), 50.0, np.inf)
+    std, sigma = joint_std(robot, trial.q, trial.tracks, w, view, free, None, prior)
+    cov = joint_covariance(robot, trial.q, trial.tracks, w, view, free, None, prior)
+    held = ~free.reshape(-1)
+    assert np.isnan(cov[held]).all() and np.isnan(cov[:, held]).all()
+    assert np.allclose(cov[~held][:, ~held], cov[~held][:, ~held].T)
+    assert np.allclose(sigma * np.sqrt(np.diag(cov)[~held]), std.reshape(-1)[~held], rtol=1e-4)
+    # frames are correlated through the prior and the shared camera: not a diagonal matrix
+    corr = cov[~held][:, ~held] / np.outer(np.sqrt(np.diag(cov)[~held]), np.sqrt(np.diag(cov)[~held]))
+    assert np.abs(corr[0, robot.nv:]).max() > 0.1

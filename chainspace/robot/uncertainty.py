@@ -114,6 +114,42 @@ def joint_std(robot: RobotKinematics, q: np.ndarray, tracks: np.ndarray, w: np.n
     return np.where(free, std, np.nan), float(sigma)
 
 
+def joint_covariance(robot: RobotKinematics, q: np.ndarray, tracks: np.ndarray, w: np.ndarray, view, free: np.ndarray,
+                     delta: float | None, prior=None) -> np.ndarray:
+    """(F nv, F nv) covariance of the fitted joint angles q (F, nq) over all frames and joints, frame
+    after frame, per unit pixel variance (times ``sigma^2`` of :func:`joint_std`, whose squared
+    deviations are its diagonal): the camera(s) marginalised, NaN in the rows and columns of held
+    directions. Arguments as for :func:`joint_std`.
+
+    Dense (cubic in F nv): for short sequences, where the correlations between frames matter, such as
+    a benchmark asking whether one trial's errors, which share the camera's and the motion prior's,
+    are as spread as the model says (:mod:`benchmarks.bench_uncertainty`)."""
+    F, J, D = tracks.shape
+    nv, N = robot.nv, len(q) * robot.nv
+    pos, jac = robot.jacobians(q)
+    pred, y = view.apply(pos)
+    rn = np.linalg.norm(pred - np.nan_to_num(tracks), axis=-1)
+    ww = w * _huber(rn, delta)[1]
+    Hqq, Hqc, _, Hcc, _ = _normal_equations(view, jac, y, pred - np.nan_to_num(tracks), ww, free,
+                                            np.ones(view.n_params, bool))
+    C, nc = len(Hcc), view.n_params
+    fr = free.reshape(-1)
+    H = np.zeros((N + C * nc, N + C * nc))
+    frames = np.arange(F)[:, None] * nv + np.arange(nv)
+    H[frames[:, :, None], frames[:, None, :]] = Hqq
+    if prior is not None:
+        H[:N, :N] += prior.toarray() * np.outer(fr, fr)
+    cams = N + np.asarray(view.cam_of)[:, None] * nc + np.arange(nc)  # (F, nc) columns of each frame's camera
+    H[frames[:, :, None], cams[:, None, :]] = Hqc
+    H[cams[:, :, None], frames[:, None, :]] = Hqc.transpose(0, 2, 1)
+    for c in range(C):
+        H[N + c * nc:N + (c + 1) * nc, N + c * nc:N + (c + 1) * nc] = Hcc[c]
+    keep = np.r_[fr, np.ones(C * nc, bool)]
+    cov = np.full((N, N), np.nan)
+    cov[np.ix_(fr, fr)] = np.linalg.pinv(H[np.ix_(keep, keep)], hermitian=True)[:fr.sum(), :fr.sum()]
+    return cov
+
+
 # a joint whose unsettled alternatives differ from the reported motion by more (RMS) is ambiguous: the
 # accuracy the full-range benchmark asks for (2 degrees RMS). At 5, TALOS's arm had tied alternatives 3-5
 # degrees away on four joints, reported observable and 2.6-4.1 degrees off: a fit that fits as well
