@@ -141,41 +141,50 @@ def _PtG(P: np.ndarray, G: np.ndarray) -> np.ndarray:
     return np.matmul(np.swapaxes(P, -1, -2), G)
 
 
-def _solve_A(A, P, S, R, wb, taus):
-    """FISTA on tau ||A||_* + 1/2 sum_k || (P_k A_k S - R_k) sqrt(w_k) ||^2, one step per tau in taus."""
+def _solve_A(A, Rot, s, S, R, wb, taus):
+    """FISTA on tau ||A||_* + 1/2 sum_k || (P_k A_k S - R_k) sqrt(w_k) ||^2, one step per tau in taus,
+    with P_k = s_k Rot_k[:2].
+
+    The steps run in camera axes, on Rot_k A_k: stacking the frames' rotations gives a block-diagonal
+    orthogonal matrix, so the nuclear norm, and the SVT with it, are unchanged, while P_k becomes
+    s_k [I 0]: the data term acts on the first two rows only and the gradient needs no per-frame
+    3 x 3 products. The arrays are rows-first (3, F, 3K), so those two rows are one contiguous block."""
     F, m = A.shape[0], A.shape[-1]
     # Lipschitz constant of the gradient: max_k s_k^2 * lambda_max(S diag(w_k) S^T) <= max_k s_k^2 * ||S||^2 max w
-    s2 = (P**2).sum(-1).max(-1)
-    lip = float((s2 * wb.max(-1)).max() * np.linalg.norm(S, 2) ** 2)
+    lip = float((s**2 * wb.max(-1)).max() * np.linalg.norm(S, 2) ** 2)
     if lip <= 0:
         return A
     step = 1.0 / lip
     St = np.ascontiguousarray(S.T)
+    Rc = np.ascontiguousarray(np.swapaxes(R, 0, 1))  # (2, F, L)
     wk = wb[:, 0]
-    if (wb == wk[:, None]).all():
-        # One weight per frame (every bone seen, equal confidences): the gradient
-        # w_k (P_k^T P_k A_k S S^T - P_k^T R_k S^T) needs no per-bone products in the loop, and in
-        # the eigenbasis U of S S^T (A -> A U, which the SVT commutes with) S S^T is diagonal.
-        lam, U = np.linalg.eigh(S @ St)
-        PtP = _PtG(P, P) * (step * wk)[:, None, None]
-        c = _PtG(P, ((R * (step * wk)[:, None, None]).reshape(2 * F, -1) @ (St @ U)).reshape(F, 2, m))
-        A_prev = (A.reshape(-1, m) @ U).reshape(A.shape)
+    uniform = bool((wb == wk[:, None]).all())
+    # One weight per frame (every bone seen, equal confidences): in the eigenbasis U of S S^T (A -> A U,
+    # which the SVT commutes with) S S^T = U diag(lam) U^T is diagonal, and the descent step is a
+    # product with a per-frame, per-column factor.
+    lam, U = np.linalg.eigh(S @ St) if uniform else (None, np.eye(m))
+    A_prev = (np.swapaxes(Rot @ A, 0, 1).reshape(3 * F, m) @ U).reshape(3, F, m)
+    if uniform:
+        fac = 1.0 - (step * wk * s**2)[:, None] * lam  # (F, 3K)
+        c = (Rc.reshape(2 * F, -1) @ (St @ U)).reshape(2, F, m) * (step * wk * s)[:, None]
 
-        def descent(Y):  # Y - step * gradient(Y)
-            Z = np.matmul(PtP, Y)
-            Z *= -lam
-            Z += Y
-            Z += c
-            return Z
+        def descent(Y, out):  # Y - step * gradient(Y), the third row unchanged
+            np.multiply(Y[:2], fac, out=out[:2])
+            out[:2] += c
+            out[2] = Y[2]
+            return out
     else:
-        U, A_prev = None, A.copy()
+        sw = s[:, None] * wb  # (F, L)
 
-        def descent(Y):
-            res = (_PA(P, Y).reshape(2 * F, m) @ S).reshape(F, 2, -1) - R  # (F, 2, L)
-            return Y - step * _PtG(P, ((res * wb[:, None, :]).reshape(2 * F, -1) @ St).reshape(F, 2, m))
-    Y, t = A_prev.copy(), 1.0
+        def descent(Y, out):
+            res = (Y[:2].reshape(2 * F, m) @ S).reshape(2, F, -1) * s[:, None] - Rc  # (2, F, L)
+            res *= sw
+            np.subtract(Y[:2], step * (res.reshape(2 * F, -1) @ St).reshape(2, F, m), out=out[:2])
+            out[2] = Y[2]
+            return out
+    Y, Z, t = A_prev.copy(), np.empty_like(A_prev), 1.0
     for tau in taus:
-        A_new, _ = _svt(descent(Y), step * tau)
+        A_new, _ = _svt(descent(Y, Z), step * tau)
         t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
         # Y = A_new + beta (A_new - A_prev), written to reuse the buffers
         beta = (t - 1.0) / t_new
@@ -183,9 +192,7 @@ def _solve_A(A, P, S, R, wb, taus):
         Y *= beta
         Y += A_new
         A_prev, t = A_new, t_new
-    if U is not None:
-        return (A_prev.reshape(-1, m) @ U.T).reshape(A.shape)
-    return A_prev
+    return np.swapaxes(Rot, 1, 2) @ np.swapaxes((A_prev.reshape(3 * F, m) @ U.T).reshape(3, F, m), 0, 1)
 
 
 def kcs_factorize(
@@ -254,7 +261,7 @@ def kcs_factorize(
         # Continuation: the first pass lowers tau from tau_hi to tau_lo; later passes, warm-started
         # from the previous A, stay at tau_lo.
         taus = np.geomspace(tau_hi, tau_lo, svt_steps) if it == 1 else np.full(max(svt_steps // 4, 1), tau_lo)
-        A = _solve_A(A, P, S, R, wb, taus)
+        A = _solve_A(A, Rot, s, S, R, wb, taus)
         B = (A.reshape(-1, A.shape[-1]) @ S).reshape(F, 3, -1) + B0
         P, s, Rot = fit_cameras(Wb, np.swapaxes(B, 1, 2), wb, return_rotation=True, R0=Rot, n_iter=1)
         X, t = record(A, P)
