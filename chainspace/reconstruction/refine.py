@@ -260,7 +260,7 @@ def _viterbi(unary: np.ndarray, z: np.ndarray, k_acc: float) -> np.ndarray:
 
     The states are pairs of consecutive signs (4 states, so the acceleration term is exact). Not
     the textbook forward pass with backtracking, which is a Python loop over frames: forward and
-    backward min-plus messages from blocked prefix products (a loop over about sqrt(F) steps
+    backward min-plus messages from blocked prefix products (loops over about sqrt(F) steps
     vectorised over the blocks, :func:`_prefix_minplus`), and the state of each frame pair the
     minimiser of its min-marginal (the optimal path wherever it is unique).
     """
@@ -268,39 +268,53 @@ def _viterbi(unary: np.ndarray, z: np.ndarray, k_acc: float) -> np.ndarray:
     if F < 3:
         return unary.argmin(0)
     K = F - 2  # transitions between pairs (s_k, s_k+1) -> (s_k+1, s_k+2)
-    b = max(int(np.sqrt(K)), 1)
-    nb = -(-K // b)
-    T = np.full((2, 2, 2, 2, nb * b, n), np.inf)  # [a, bb] -> [bb, c], transition k, chain
+    T = np.empty((2, 2, 2, n, K))  # [a, bb, c]: pair (a, bb) -> (bb, c), chain, transition k
     for a in (0, 1):
         for bb in (0, 1):
             for c in (0, 1):
-                T[a, bb, bb, c, :K] = (k_acc * (z[a, :, :-2] - 2.0 * z[bb, :, 1:-1] + z[c, :, 2:]) ** 2
-                                       + unary[c, :, 2:]).T
-    T[..., K:, :] = np.where(np.eye(4, dtype=bool), 0.0, np.inf).reshape(2, 2, 2, 2, 1, 1)  # padding
-    # blocks: transition c b + j -> T[j, :, :, c]
-    T = np.ascontiguousarray(T.reshape(4, 4, nb, b, n).transpose(3, 0, 1, 2, 4))
-    init = (unary[:, None, :, 0] + unary[None, :, :, 1]).reshape(4, n)
-    fwd = _prefix_minplus(init, T)[:K + 1]
-    bwd = _prefix_minplus(np.zeros((4, n)), np.swapaxes(T[::-1, :, :, ::-1], 1, 2))[::-1][:K + 1]
-    p = (fwd + bwd).argmin(1)  # (F - 1, n): best pair state of frames (k, k + 1)
+                T[a, bb, c] = k_acc * (z[a, :, :-2] - 2.0 * z[bb, :, 1:-1] + z[c, :, 2:]) ** 2 + unary[c, :, 2:]
+    init = unary[:, None, :, 0] + unary[None, :, :, 1]
+    fwd = _prefix_minplus(init, T)
+    # backward: the same recursion on the reversed chain, whose pairs are (later, earlier) sign
+    bwd = _prefix_minplus(np.zeros((2, 2, n)), T.transpose(2, 1, 0, 3, 4)[..., ::-1])
+    p = (fwd + np.swapaxes(bwd, 1, 2)[::-1]).reshape(K + 1, 4, n).argmin(1)  # best pair state of frames (k, k + 1)
     return np.concatenate([p // 2, p[-1:] % 2]).T
 
 
 def _prefix_minplus(init: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """All min-plus messages m_0 = init (S, n), m_(i+1) = m_i (x) T_i, (x) = min over the state of
-    the sum, for transitions given in blocks (b, S, S, nb, n), T_(c b + j) = T[j, :, :, c]:
-    (nb b + 1, S, n)."""
-    b, S, _, nb, n = T.shape
-    pref = np.empty(T.shape)  # pref[j, :, :, c]: product of the first j + 1 transitions of block c
-    pref[0] = T[0]
+    """All min-plus messages over pairs of consecutive states, m_0 = init (2, 2, n) and
+    m_(k+1)[b, c] = min_a m_k[a, b] + T[a, b, c, :, k] for transitions T (2, 2, 2, n, K):
+    (K + 1, 2, 2, n).
+
+    In blocks of about sqrt(K) transitions: each block's min-plus product (a loop over the block
+    length, vectorised over the blocks), the messages at the block starts from them (a loop over
+    the blocks), then the messages inside all blocks at once (a loop over the block length). A
+    pair (a, b) only goes to a pair (b, c), so a step is a minimum over the two values of a."""
+    n, K = T.shape[3:]
+    b = max(int(np.sqrt(K)), 1)
+    nb = -(-K // b)
+    Tp = np.zeros((2, 2, 2, n, nb * b))  # padded at the end: the messages there are cut off
+    Tp[..., :K] = T
+    Tb = np.ascontiguousarray(Tp.reshape(2, 2, 2, n, nb, b).transpose(5, 0, 1, 2, 3, 4))  # (b, a, bb, c, n, nb)
+    # prod[s, bb, c]: least cost from the pair s at a block's start to the pair (bb, c) after j + 1 steps
+    prod = np.full((4, 2, 2, n, nb), np.inf)
+    first = prod.reshape(2, 2, 2, 2, n, nb)
+    for bb in (0, 1):
+        first[:, bb, bb] = Tb[0, :, bb]
     for j in range(1, b):
-        pref[j] = (pref[j - 1][:, :, None] + T[j][None]).min(1)
-    starts = np.empty((nb, S, n))  # messages at the block starts
-    starts[0] = init
-    for c in range(1, nb):
-        starts[c] = (starts[c - 1][:, None, :] + pref[-1, :, :, c - 1]).min(0)
-    out = (np.swapaxes(starts, 0, 1)[None, :, None] + pref).min(1)  # (b, S, nb, n)
-    return np.concatenate([init[None], out.transpose(2, 0, 1, 3).reshape(nb * b, S, n)])
+        prod = np.minimum(prod[:, 0, :, None] + Tb[j, 0], prod[:, 1, :, None] + Tb[j, 1])
+    prod = prod.reshape(4, 4, n, nb)
+    starts = np.empty((nb, 4, n))  # messages at the block starts
+    starts[0] = init.reshape(4, n)
+    for i in range(1, nb):
+        starts[i] = (starts[i - 1][:, None, :] + prod[..., i - 1]).min(0)
+    msgs = np.empty((b + 1, 2, 2, n, nb))
+    msgs[0] = np.moveaxis(starts, 0, -1).reshape(2, 2, n, nb)
+    for j in range(b):
+        m = msgs[j]
+        np.minimum(m[0, :, None] + Tb[j, 0], m[1, :, None] + Tb[j, 1], out=msgs[j + 1])
+    out = np.concatenate([msgs[:b].transpose(4, 0, 1, 2, 3).reshape(nb * b, 2, 2, n), msgs[b, ..., -1][None]])
+    return out[:K + 1]
 
 
 def _interpolated_xy(Wb: np.ndarray, wb: np.ndarray, s: np.ndarray, fallback: np.ndarray,
