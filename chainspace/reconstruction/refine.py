@@ -107,34 +107,49 @@ class _Problem:
         # arrays (on (F, n, 3) every product over the short last axis is several times slower)
         self.u_par, self.uy, self.yxu = _coords(u), _dot(u, y), _coords(_cross(y, u))
         self.glob_c = _coords(self.glob)
+        self._gathered: dict[bytes, tuple] = {}
+        self.Wb_c = _coords(self.Wb)
 
     def prior(self, x: np.ndarray, bones: Any = None) -> np.ndarray:
         """Prior bones (F, n, 3): the initial pose's bone turned by the smallest rotation that takes
         the initial pose's parent bone onto the current parent bone (so a knee keeps its bending
         direction relative to the thigh); the initial pose's own bone where there is no parent."""
+        return np.moveaxis(self.prior_coords(x, bones), 0, -1)
+
+    def prior_coords(self, x: np.ndarray, bones: Any = None) -> np.ndarray:
+        """:meth:`prior` coordinates first, (3, F, n)."""
         idx = np.arange(self.Wb.shape[1]) if bones is None else np.asarray(bones)
-        has = np.flatnonzero(self.parent[idx] >= 0)
+        glob, has, q, u, y, yxu, uy = self._constants(idx)
         if not len(has):
-            return np.take(self.glob, idx, axis=1)
-        q = self.parent[idx[has]]
-        k = self.slot[idx[has]]
-        u = self.u_par[:, :, k]
-        y = self.glob_c[:, :, idx[has]]
+            return glob.copy()
         v = _coords(np.take(x, q, axis=1))
         v /= np.maximum(np.sqrt(_cdot(v, v)), 1e-300)
         c = _cdot(u, v)
         # Rodrigues for the rotation taking u to v, with w = u x v: y c + w x y + w (w.y) / (1 + c),
         # where w x y = v (u.y) - u (v.y) and w.y = v.(y x u)
         vy = _cdot(v, y)
-        f = _cdot(v, self.yxu[:, :, k]) / np.maximum(1.0 + c, 1e-9)
+        f = _cdot(v, yxu) / np.maximum(1.0 + c, 1e-9)
         w = (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
-        uy, keep = self.uy[:, k], c > -0.999
-        rot = np.stack([np.where(keep, y[i] * c + v[i] * uy - u[i] * vy + w[i] * f, y[i]) for i in range(3)], -1)
+        rot = np.stack([y[i] * c + v[i] * uy - u[i] * vy + w[i] * f for i in range(3)])
+        flip = ~(c > -0.999)  # parent turned about backwards: the rotation is ill-defined, keep y
+        if flip.any():
+            rot = np.where(flip, y, rot)
         if len(has) == len(idx):
             return rot
-        out = np.take(self.glob, idx, axis=1)
-        out[:, has] = rot
+        out = glob.copy()
+        out[:, :, has] = rot
         return out
+
+    def _constants(self, idx: np.ndarray) -> tuple:
+        """The prior's constant arrays for the bones idx, gathered once per set of bones (the
+        refinement asks for the same few sets, a tree level and its children, again and again)."""
+        key = idx.tobytes()
+        if key not in self._gathered:
+            has = np.flatnonzero(self.parent[idx] >= 0)
+            k = self.slot[idx[has]]
+            self._gathered[key] = (self.glob_c[:, :, idx], has, self.parent[idx[has]], self.u_par[:, :, k],
+                                   self.glob_c[:, :, idx[has]], self.yxu[:, :, k], self.uy[:, k])
+        return self._gathered[key]
 
 
 def _coords(a: np.ndarray) -> np.ndarray:
@@ -195,16 +210,16 @@ def _accel(x: np.ndarray) -> np.ndarray:
 def objective_terms(pb: _Problem, x: np.ndarray, l: np.ndarray, bones: Any = None) -> dict[str, np.ndarray]:
     """Each term of E per bone, (L,) arrays (image units squared); only ``bones`` if given."""
     idx = np.arange(x.shape[1]) if bones is None else np.asarray(bones)
-    xb = np.take(x, idx, axis=1)
-    Wb = np.take(pb.Wb, idx, axis=1)
+    xc = _coords(np.take(x, idx, axis=1))  # (3, F, n): sums over frames of contiguous rows
+    Wb = pb.Wb_c[:, :, idx]
     s = pb.s[:, None]
-    r = np.sqrt((s * xb[..., 0] - Wb[..., 0]) ** 2 + (s * xb[..., 1] - Wb[..., 1]) ** 2)
-    data = np.einsum("fl,fl->l", np.take(pb.wb, idx, axis=1), _huber(r, pb.delta))
-    length = pb.lam_len * pb.s2 * ((np.sqrt(_dot(xb, xb)) - l[idx]) ** 2).sum(0)
-    a = _accel(xb)
-    smooth = pb.lam_smooth * pb.s2 * np.einsum("fli,fli->l", a, a)
-    d = xb - pb.prior(x, idx)
-    prior = pb.lam_prior * pb.s2 * np.einsum("fli,fli->l", d, d)
+    r = np.sqrt((s * xc[0] - Wb[0]) ** 2 + (s * xc[1] - Wb[1]) ** 2)
+    data = (pb.wb[:, idx] * _huber(r, pb.delta)).sum(0)
+    length = pb.lam_len * pb.s2 * ((np.sqrt(_cdot(xc, xc)) - l[idx]) ** 2).sum(0)
+    a = xc[:, 2:] - 2.0 * xc[:, 1:-1] + xc[:, :-2]
+    smooth = pb.lam_smooth * pb.s2 * _cdot(a, a).sum(0)
+    d = xc - pb.prior_coords(x, idx)
+    prior = pb.lam_prior * pb.s2 * _cdot(d, d).sum(0)
     return {"data": data, "length": length, "smooth": smooth, "prior": prior}
 
 
@@ -244,7 +259,7 @@ def _sign_proposal(pb: _Problem, x: np.ndarray, l: np.ndarray, bones: Any) -> np
     """Proposed bones ``x[:, bones]`` (F, n, 3) with depths of length l_b, their signs from a
     second-order Viterbi pass over frames (vectorised over the bones). The prior is evaluated at x."""
     idx = np.asarray(bones)
-    prior_z = np.moveaxis(pb.prior(x, idx)[..., 2], 0, -1)  # (n, F)
+    prior_z = pb.prior_coords(x, idx)[2].T  # (n, F)
     xb = x[:, idx]
     m = np.sqrt(np.maximum(l[idx] ** 2 - (xb[..., :2] ** 2).sum(-1), 0.0)).T  # (n, F)
     z = np.stack([m, -m])  # (2, n, F): state 0 = towards the viewer's +z
