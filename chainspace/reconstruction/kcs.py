@@ -168,23 +168,21 @@ def _solve_A(A, Rot, s, S, R, wb, taus):
         fac = 1.0 - (step * wk * s**2)[:, None] * lam  # (F, 3K)
         c = (Rc.reshape(2 * F, -1) @ (St @ U)).reshape(2, F, m) * (step * wk * s)[:, None]
 
-        def descent(Y, out):  # Y - step * gradient(Y), the third row unchanged
-            np.multiply(Y[:2], fac, out=out[:2])
-            out[:2] += c
-            out[2] = Y[2]
-            return out
+        def descent(Y):  # Y - step * gradient(Y) in place, the third row unchanged
+            Y[:2] *= fac
+            Y[:2] += c
+            return Y
     else:
         sw = s[:, None] * wb  # (F, L)
 
-        def descent(Y, out):
+        def descent(Y):
             res = (Y[:2].reshape(2 * F, m) @ S).reshape(2, F, -1) * s[:, None] - Rc  # (2, F, L)
             res *= sw
-            np.subtract(Y[:2], step * (res.reshape(2 * F, -1) @ St).reshape(2, F, m), out=out[:2])
-            out[2] = Y[2]
-            return out
-    Y, Z, t = A_prev.copy(), np.empty_like(A_prev), 1.0
+            Y[:2] -= step * (res.reshape(2 * F, -1) @ St).reshape(2, F, m)
+            return Y
+    Y, t = A_prev.copy(), 1.0
     for tau in taus:
-        A_new, _ = _svt(descent(Y, Z), step * tau)
+        A_new, _ = _svt(descent(Y), step * tau)
         t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
         # Y = A_new + beta (A_new - A_prev), written to reuse the buffers
         beta = (t - 1.0) / t_new
@@ -235,9 +233,8 @@ def kcs_factorize(
     Dm = np.ascontiguousarray(chain.D)
     Wt = np.swapaxes(np.where(np.isfinite(tracks), tracks, 0.0), 1, 2)  # (F, 2, J)
 
-    def record(A, P):
+    def record(B, P):
         # Reprojection RMS with the best translation per frame, all in (F, 2, J) layout (cheap).
-        B = (A.reshape(-1, A.shape[-1]) @ S).reshape(F, 3, -1) + B0  # (F, 3, L)
         Xt = (B[:, :, :nb].reshape(-1, nb) @ Dm).reshape(F, 3, -1)  # (F, 3, J)
         rms, t = reprojection_with_translations(Wt, weights, Xt, P)
         hist["reprojection"].append(rms)
@@ -246,7 +243,7 @@ def kcs_factorize(
             hist.setdefault("error_3d", []).append(float(error_fn(X, truth)))
         return X, t
 
-    X, t = record(A, P)
+    X, t = record(np.broadcast_to(B0, (F,) + B0.shape), P)
     # The threshold scale: spectral norm of the gradient at A = 0 (where every singular value would
     # be thresholded away if tau were larger).
     R = Wb_cols - _PA(P, B0)
@@ -264,7 +261,7 @@ def kcs_factorize(
         A = _solve_A(A, Rot, s, S, R, wb, taus)
         B = (A.reshape(-1, A.shape[-1]) @ S).reshape(F, 3, -1) + B0
         P, s, Rot = fit_cameras(Wb, np.swapaxes(B, 1, 2), wb, return_rotation=True, R0=Rot, n_iter=1)
-        X, t = record(A, P)
+        X, t = record(B, P)
         r0, r1 = hist["reprojection"][-2], hist["reprojection"][-1]
         # Converged when the reprojection RMS changes by less than tol times the initial pose's
         # (at zero noise the RMS itself tends to 0) or the bones move by less than tol times their
