@@ -130,14 +130,23 @@ class _Problem:
         vy = _cdot(v, y)
         f = _cdot(v, yxu) / np.maximum(1.0 + c, 1e-9)
         w = (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
-        rot = np.stack([y[i] * c + v[i] * uy - u[i] * vy + w[i] * f for i in range(3)])
+        whole = len(has) == len(idx)
+        out = np.empty(y.shape) if whole else glob.copy()
+        for i in range(3):
+            r = y[i] * c
+            r += v[i] * uy
+            r -= u[i] * vy
+            r += w[i] * f
+            if whole:
+                out[i] = r
+            else:
+                out[i][:, has] = r
         flip = ~(c > -0.999)  # parent turned about backwards: the rotation is ill-defined, keep y
         if flip.any():
-            rot = np.where(flip, y, rot)
-        if len(has) == len(idx):
-            return rot
-        out = glob.copy()
-        out[:, :, has] = rot
+            if whole:
+                out[:, flip] = y[:, flip]
+            else:
+                out[:, :, has] = np.where(flip, y, out[:, :, has])
         return out
 
     def _constants(self, idx: np.ndarray) -> tuple:
