@@ -63,7 +63,7 @@ def bone_observations(chain: Any, tracks: np.ndarray, weights: np.ndarray) -> tu
     seen = np.isfinite(tracks).all(-1)
     w = np.where(seen, weights, 0.0)
     Wz = np.where(seen[..., None], tracks, 0.0)
-    Wb = np.einsum("jl,fjc->flc", C, Wz)
+    Wb = C.T @ Wz
     parent = np.argmin(C, axis=0)
     child = np.argmax(C, axis=0)
     wb = np.minimum(w[:, parent], w[:, child])
