@@ -119,7 +119,7 @@ class _Problem:
     def prior_coords(self, x: np.ndarray, bones: Any = None) -> np.ndarray:
         """:meth:`prior` coordinates first, (3, F, n)."""
         idx = np.arange(self.Wb.shape[1]) if bones is None else np.asarray(bones)
-        glob, has, q, u, y, yxu, uy = self._constants(idx)
+        glob, has, q, u, y, yxu, uy = self._constants(idx)[:7]
         if not len(has):
             return glob.copy()
         v = _coords(np.take(x, q, axis=1))
@@ -150,14 +150,16 @@ class _Problem:
         return out
 
     def _constants(self, idx: np.ndarray) -> tuple:
-        """The prior's constant arrays for the bones idx, gathered once per set of bones (the
-        refinement asks for the same few sets, a tree level and its children, again and again)."""
+        """The constant arrays of the bones idx (the prior's, then the observed 2D bones and their
+        weights), gathered once per set of bones: the refinement asks for the same few sets, a tree
+        level and its children, again and again."""
         key = idx.tobytes()
         if key not in self._gathered:
             has = np.flatnonzero(self.parent[idx] >= 0)
             k = self.slot[idx[has]]
             self._gathered[key] = (self.glob_c[:, :, idx], has, self.parent[idx[has]], self.u_par[:, :, k],
-                                   self.glob_c[:, :, idx[has]], self.yxu[:, :, k], self.uy[:, k])
+                                   self.glob_c[:, :, idx[has]], self.yxu[:, :, k], self.uy[:, k],
+                                   self.Wb_c[:, :, idx], self.wb[:, idx])
         return self._gathered[key]
 
 
@@ -220,10 +222,10 @@ def objective_terms(pb: _Problem, x: np.ndarray, l: np.ndarray, bones: Any = Non
     """Each term of E per bone, (L,) arrays (image units squared); only ``bones`` if given."""
     idx = np.arange(x.shape[1]) if bones is None else np.asarray(bones)
     xc = _coords(np.take(x, idx, axis=1))  # (3, F, n): sums over frames of contiguous rows
-    Wb = pb.Wb_c[:, :, idx]
+    Wb, wb = pb._constants(idx)[7:]
     s = pb.s[:, None]
     r = np.sqrt((s * xc[0] - Wb[0]) ** 2 + (s * xc[1] - Wb[1]) ** 2)
-    data = (pb.wb[:, idx] * _huber(r, pb.delta)).sum(0)
+    data = (wb * _huber(r, pb.delta)).sum(0)
     length = pb.lam_len * pb.s2 * ((np.sqrt(_cdot(xc, xc)) - l[idx]) ** 2).sum(0)
     a = xc[:, 2:] - 2.0 * xc[:, 1:-1] + xc[:, :-2]
     smooth = pb.lam_smooth * pb.s2 * _cdot(a, a).sum(0)
