@@ -114,12 +114,13 @@ def _pose_basis(tracks, weights, P, X0, n_basis):
     return evecs[:, ::-1][:, :k].T.copy()
 
 
-def _svt(A: np.ndarray, tau: float) -> tuple[np.ndarray, float]:
+def _svt(A: np.ndarray, tau: float, out: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """Singular value thresholding of the stacked (3F x 3K) matrix A given as (F, 3, 3K).
 
     The right singular vectors V and values come from the small Gram matrix, and the result is
     A V diag(gain) V^T = A N: one product with an (3K x 3K) matrix, or two thin ones through
-    the r kept directions when r < 3K / 2 (the thresholded rank is often low)."""
+    the r kept directions when r < 3K / 2 (the thresholded rank is often low). ``out``: an array
+    like A to write the result to."""
     M = A.reshape(-1, A.shape[-1])
     evals, V = np.linalg.eigh(M.T @ M)
     sig = np.sqrt(np.maximum(evals, 0.0))
@@ -127,8 +128,12 @@ def _svt(A: np.ndarray, tau: float) -> tuple[np.ndarray, float]:
     keep = shrunk > 0
     Vk = V[:, keep]
     Vg = Vk * (shrunk[keep] / sig[keep])
-    out = (M @ Vg) @ Vk.T if 2 * Vk.shape[1] < M.shape[1] else M @ (Vg @ Vk.T)
-    return out.reshape(A.shape), float(shrunk.sum())
+    res = np.empty(A.shape) if out is None else out
+    if 2 * Vk.shape[1] < M.shape[1]:
+        np.matmul(M @ Vg, Vk.T, out=res.reshape(M.shape))
+    else:
+        np.matmul(M, Vg @ Vk.T, out=res.reshape(M.shape))
+    return res, float(shrunk.sum())
 
 
 def _PA(P: np.ndarray, A: np.ndarray) -> np.ndarray:
@@ -180,16 +185,18 @@ def _solve_A(A, Rot, s, S, R, wb, taus):
             res *= sw
             Y[:2] -= step * (res.reshape(2 * F, -1) @ St).reshape(2, F, m)
             return Y
-    Y, t = A_prev.copy(), 1.0
+    # three buffers in turn, no array allocated per step: Y (descended in place), A_prev, spare
+    Y, spare, t = A_prev.copy(), np.empty_like(A_prev), 1.0
     for tau in taus:
-        A_new, _ = _svt(descent(Y), step * tau)
+        Z = descent(Y)
+        A_new, _ = _svt(Z, step * tau, out=spare)
         t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
-        # Y = A_new + beta (A_new - A_prev), written to reuse the buffers
+        # Y = A_new + beta (A_new - A_prev), into Z's buffer
         beta = (t - 1.0) / t_new
-        np.subtract(A_new, A_prev, out=Y)
+        Y = np.subtract(A_new, A_prev, out=Z)
         Y *= beta
         Y += A_new
-        A_prev, t = A_new, t_new
+        spare, A_prev, t = A_prev, A_new, t_new
     return np.swapaxes(Rot, 1, 2) @ np.swapaxes((A_prev.reshape(3 * F, m) @ U.T).reshape(3, F, m), 0, 1)
 
 
