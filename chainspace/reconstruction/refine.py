@@ -107,7 +107,6 @@ class _Problem:
         # arrays (on (F, n, 3) every product over the short last axis is several times slower)
         self.u_par, self.uy, self.yxu = _coords(u), _dot(u, y), _coords(_cross(y, u))
         self.glob_c = _coords(self.glob)
-        self._gathered: dict[bytes, tuple] = {}
         self.Wb_c = _coords(self.Wb)
 
     def prior(self, x: np.ndarray, bones: Any = None) -> np.ndarray:
@@ -119,9 +118,9 @@ class _Problem:
     def prior_coords(self, x: np.ndarray, bones: Any = None) -> np.ndarray:
         """:meth:`prior` coordinates first, (3, F, n)."""
         idx = np.arange(self.Wb.shape[1]) if bones is None else np.asarray(bones)
-        glob, has, q, u, y, yxu, uy = self._constants(idx)[:7]
+        has, q, u, y, yxu, uy = self._constants(idx)
         if not len(has):
-            return glob.copy()
+            return self.glob_c[:, :, idx]
         v = _coords(np.take(x, q, axis=1))
         v /= np.maximum(np.sqrt(_cdot(v, v)), 1e-300)
         c = _cdot(u, v)
@@ -131,7 +130,7 @@ class _Problem:
         f = _cdot(v, yxu) / np.maximum(1.0 + c, 1e-9)
         w = (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
         whole = len(has) == len(idx)
-        out = np.empty(y.shape) if whole else glob.copy()
+        out = np.empty(y.shape) if whole else self.glob_c[:, :, idx]
         for i in range(3):
             r = y[i] * c
             r += v[i] * uy
@@ -150,17 +149,12 @@ class _Problem:
         return out
 
     def _constants(self, idx: np.ndarray) -> tuple:
-        """The constant arrays of the bones idx (the prior's, then the observed 2D bones and their
-        weights), gathered once per set of bones: the refinement asks for the same few sets, a tree
-        level and its children, again and again."""
-        key = idx.tobytes()
-        if key not in self._gathered:
-            has = np.flatnonzero(self.parent[idx] >= 0)
-            k = self.slot[idx[has]]
-            self._gathered[key] = (self.glob_c[:, :, idx], has, self.parent[idx[has]], self.u_par[:, :, k],
-                                   self.glob_c[:, :, idx[has]], self.yxu[:, :, k], self.uy[:, k],
-                                   self.Wb_c[:, :, idx], self.wb[:, idx])
-        return self._gathered[key]
+        """The prior's constant arrays for the bones idx: which of them have a parent bone, those
+        parents, and the initial-pose arrays of those bones."""
+        has = np.flatnonzero(self.parent[idx] >= 0)
+        k = self.slot[idx[has]]
+        return (has, self.parent[idx[has]], self.u_par[:, :, k], self.glob_c[:, :, idx[has]], self.yxu[:, :, k],
+                self.uy[:, k])
 
 
 def _coords(a: np.ndarray) -> np.ndarray:
@@ -222,7 +216,7 @@ def objective_terms(pb: _Problem, x: np.ndarray, l: np.ndarray, bones: Any = Non
     """Each term of E per bone, (L,) arrays (image units squared); only ``bones`` if given."""
     idx = np.arange(x.shape[1]) if bones is None else np.asarray(bones)
     xc = _coords(np.take(x, idx, axis=1))  # (3, F, n): sums over frames of contiguous rows
-    Wb, wb = pb._constants(idx)[7:]
+    Wb, wb = pb.Wb_c[:, :, idx], pb.wb[:, idx]
     s = pb.s[:, None]
     r = np.sqrt((s * xc[0] - Wb[0]) ** 2 + (s * xc[1] - Wb[1]) ** 2)
     data = (wb * _huber(r, pb.delta)).sum(0)
