@@ -19,8 +19,10 @@ thresholding, SVT). The penalty weight follows a continuation schedule: in the f
 falls geometrically from ``tau_range[0]`` to ``tau_range[1]`` times the spectral norm of the first
 gradient (1e-1 to 1e-4), so that the equality holds at the end as far as the data allow; later
 passes, warm-started from the previous ``A``, stay at the small ``tau``. The singular values of the
-(3F x 3K) matrix ``A`` come from its 3K x 3K Gram matrix, so an iteration costs O(F K L); with
-one weight per frame the steps run in the eigenbasis of ``S S^T``, where it is diagonal. The
+(3F x 3K) matrix ``A`` come from its 3K x 3K Gram matrix, so an iteration costs O(F K L). The
+steps run in camera axes, on ``R_k A_k`` (a block-diagonal rotation of the stacked ``A``, which
+leaves its singular values alone), where ``P_k = s_k [I 0]``; with one weight per frame also in the
+eigenbasis of ``S S^T``, where a descent step is a per-frame, per-column factor. The
 camera step starts from the previous rotations (one Gauss-Newton step per pass: more did not change
 the result).
 
