@@ -190,15 +190,15 @@ def _solve_A(A, Rot, s, S, R, wb, taus):
     # three buffers in turn, no array allocated per step: Y (descended in place), A_prev, spare
     Y, spare, t = A_prev.copy(), np.empty_like(A_prev), 1.0
     for tau in taus:
-        Z = descent(Y)
-        A_new, _ = _svt(Z, step * tau, out=spare)
+        A_new, _ = _svt(descent(Y), step * tau, out=spare)
         t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
-        # Y = A_new + beta (A_new - A_prev), into Z's buffer
+        # Y = A_new + beta (A_new - A_prev), into the descended Y's buffer
         beta = (t - 1.0) / t_new
-        Y = np.subtract(A_new, A_prev, out=Z)
+        np.subtract(A_new, A_prev, out=Y)
         Y *= beta
         Y += A_new
         spare, A_prev, t = A_prev, A_new, t_new
+    del Y, spare  # the buffers go before the result is turned back to world axes (peak memory)
     return np.swapaxes(Rot, 1, 2) @ np.swapaxes((A_prev.reshape(3 * F, m) @ U.T).reshape(3, F, m), 0, 1)
 
 
