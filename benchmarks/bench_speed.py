@@ -6,8 +6,9 @@ BLAS thread and with all cores, and the peak memory per frame.
 
 A 17-joint human17 chain moving smoothly (chainspace.synthetic.views.swing_motion at 120 Hz), a
 low-motion orbit camera, 2 px noise (chainspace.bench.reconstruction.run_speed). Prints a markdown
-table and the linearity of each stage (frames/s at the largest size over the smallest; 1 = cost
-linear in frames). Each size is repeated for about a second and the fastest run counts (the machine
+table (frames/s on the wall clock and per CPU second, the KCS iterations and refinement sweeps, the
+peak memory per frame) and the linearity of each stage (frames/s at the largest size over the
+smallest; 1 = cost linear in frames). On a shared machine compare the per-CPU-second columns. Each size is repeated for about a second and the fastest run counts (the machine
 may be shared). The thread count is set per call (reconstruct(..., blas_threads=1 or None), through
 threadpoolctl); peak memory is tracemalloc's, in a separate run.
 """

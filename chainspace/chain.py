@@ -261,7 +261,7 @@ class KinematicChain:
     # ------------------------------------------------------------------ maps between spaces
     def bone_vectors(self, poses: Any) -> np.ndarray:
         """Link vectors ``X C`` of poses (..., J, 3), returned as (..., L, 3)."""
-        return np.einsum("jl,...jc->...lc", self.C, self._as_poses(poses))
+        return self.C.T @ self._as_poses(poses)  # a matrix product: einsum here is ~7x slower
 
     def bone_lengths(self, poses: Any) -> np.ndarray:
         """Lengths of every link (bones, then rigid links) of poses (..., J, 3): (..., L)."""
@@ -273,7 +273,7 @@ class KinematicChain:
         Rigid-link columns, if passed (L instead of n_bones rows), are ignored.
         """
         B = np.asarray(bones, dtype=float)
-        return np.einsum("bj,...bc->...jc", self.D, B[..., : self.n_bones, :])
+        return self.D.T @ B[..., : self.n_bones, :]
 
     def _as_poses(self, poses: Any) -> np.ndarray:
         X = np.asarray(poses, dtype=float)

@@ -78,3 +78,21 @@ def test_closed_form_orthonormal_rows_are_the_svd_polar_factor():
     Q = _orthonormal_rows(M)
     np.testing.assert_allclose(Q[2:], (U @ Vt)[2:], atol=1e-10)
     np.testing.assert_allclose(Q @ np.swapaxes(Q, 1, 2), np.broadcast_to(np.eye(2), (200, 2, 2)), atol=1e-10)
+
+
+def test_written_out_cholesky_solves_the_gauss_newton_systems():
+    """The 4 x 4 solve of a Gauss-Newton step (entries given as (F,) arrays, two of them zero as in
+    the camera's normal matrix) equals np.linalg.solve, on systems whose unknowns differ in scale by 10^4."""
+    from chainspace.cameras.weak import _solve_spd4
+
+    rng = np.random.default_rng(4)
+    F = 300
+    J = rng.normal(size=(F, 8, 4)) * np.logspace(0, -4, 4)  # columns of very different scales
+    A = np.swapaxes(J, 1, 2) @ J + 1e-9 * np.eye(4)
+    A[:, 0, 3] = A[:, 3, 0] = A[:, 1, 2] = A[:, 2, 1] = 0.0
+    A += np.abs(A).sum(-1)[..., None] * np.eye(4)  # keep it positive definite after the zeros
+    b = rng.normal(size=(F, 4))
+    N = [[A[:, i, j] if j <= i else None for j in range(4)] for i in range(4)]
+    N[3][0], N[2][1] = 0.0, 0.0
+    x = _solve_spd4(N, [b[:, i] for i in range(4)])
+    np.testing.assert_allclose(x, np.linalg.solve(A, b[..., None])[..., 0], rtol=1e-10, atol=1e-12)

@@ -70,3 +70,27 @@ def test_svt_matches_a_full_svd():
         shrunk = np.maximum(sig - tau, 0.0)
         np.testing.assert_allclose(out.reshape(-1, 15), (U * shrunk) @ Vt, atol=1e-10 * sig[0])
         assert nuc == pytest.approx(shrunk.sum())
+
+
+@pytest.mark.parametrize("uniform", [True, False])
+def test_steps_in_camera_axes_equal_the_paper_step(uniform):
+    """One FISTA step of _solve_A (run in camera axes, rotated per frame) is the textbook proximal
+    gradient step in world axes: SVT(A - step * P^T ((P A S - R) w) S^T)."""
+    from chainspace.cameras.weak import fit_cameras
+    from chainspace.reconstruction.kcs import _solve_A, _svt, bone_observations
+
+    chain, X, W = _case(noise=1.0, F=40)
+    c = np.ones(W.shape[:2]) if uniform else np.random.default_rng(1).uniform(0.2, 1.0, W.shape[:2])
+    Wb, wb = bone_observations(chain, W, c)
+    B0 = (chain.C.T @ chain.rest_pose).T
+    P, s, Rot = fit_cameras(Wb, B0.T, wb, return_rotation=True)
+    rng = np.random.default_rng(2)
+    S = rng.normal(size=(15, B0.shape[1]))
+    A = rng.normal(size=(len(W), 3, 15)) * 0.1
+    R = np.swapaxes(Wb, 1, 2) - P @ B0
+    step = 1.0 / float((s**2 * wb.max(-1)).max() * np.linalg.norm(S, 2) ** 2)
+    grad = np.swapaxes(P, 1, 2) @ (((P @ A @ S) - R) * wb[:, None, :]) @ S.T
+    tau = 0.3 / step
+    want, _ = _svt(A - step * grad, step * tau)
+    got = _solve_A(A, Rot, s, S, R, wb, [tau])
+    np.testing.assert_allclose(got, want, atol=1e-10 * np.abs(want).max())

@@ -178,8 +178,9 @@ def test_speed_table_format():
     from chainspace.bench.reconstruction import format_speed
 
     rows = [{"frames": n, "threads": t, "kcs_s": n / 2e4, "kcs_cpu_s": n / 2e4, "default_s": n / k,
-             "default_cpu_s": n / k, "refine_s": n / 8e3, "kcs_bytes_per_frame": 4e3, "default_bytes_per_frame": 1.6e4}
+             "default_cpu_s": n / k, "refine_s": n / 8e3, "kcs_bytes_per_frame": 4e3, "default_bytes_per_frame": 1.6e4,
+             "kcs_iterations": 5, "refine_sweeps": 4}
             for n, k in ((1_000, 5e3), (100_000, 2.5e3)) for t in (1, None)]
     table = format_speed(rows)
-    assert "| 100,000 | all cores | 5 | 5 | 20,000 | 8,000 | 40 | 40 | 2,500 | 4 | 16 |" in table
+    assert "| 100,000 | all cores | 5 | 5 | 20,000 | 20,000 | 5 | 8,000 | 4 | 40 | 40 | 2,500 | 2,500 | 4 | 16 |" in table
     assert "Linearity, BLAS threads 1: frames/s at 100,000 over 1,000 frames: KCS 1.00 (CPU 1.00), default 0.50" in table

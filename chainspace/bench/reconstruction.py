@@ -231,6 +231,8 @@ def run_speed(sizes: Sequence[int] = (1_000, 10_000, 100_000), *, quick: bool = 
                 rows.append({"frames": n, "threads": n_threads, "kcs_s": t_kcs, "kcs_cpu_s": cpu_kcs,
                              "default_s": t_def, "default_cpu_s": cpu_def,
                              "refine_s": rec.timings.get("refine", 0.0),
+                             "kcs_iterations": len(rec.history["kcs"]["reprojection"]) - 1,
+                             "refine_sweeps": rec.n_iter,
                              "kcs_bytes_per_frame": mem.get("kcs"), "default_bytes_per_frame": mem.get("default")})
                 if progress:
                     progress(f"{n} frames, BLAS threads {n_threads or 'all'}: KCS {t_kcs:.2f} s, default {t_def:.2f} s")
@@ -246,14 +248,21 @@ def format_speed(rows: Sequence[dict[str, Any]]) -> str:
     def kb(v):
         return num(None if v is None else v / 1e3, ".3g")
 
-    lines = ["| frames | BLAS threads | KCS s | KCS CPU s | KCS frames/s | refine frames/s | default s "
-             "| default CPU s | default frames/s | KCS peak kB/frame | default peak kB/frame |",
-             "|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    def per_cpu_s(n, v):
+        return "-" if not v else f"{n / v:,.0f}"
+
+    lines = ["| frames | BLAS threads | KCS s | KCS CPU s | KCS frames/s | KCS frames per CPU s | KCS iterations "
+             "| refine frames/s | refine sweeps | default s | default CPU s | default frames/s "
+             "| default frames per CPU s | KCS peak kB/frame | default peak kB/frame |",
+             "|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         n = r["frames"]
         lines.append(f"| {n:,} | {r['threads'] or 'all cores'} | {r['kcs_s']:.3g} | {num(r.get('kcs_cpu_s'), '.3g')} | "
-                     f"{n / r['kcs_s']:,.0f} | {n / max(r['refine_s'], 1e-12):,.0f} | {r['default_s']:.3g} | "
-                     f"{num(r.get('default_cpu_s'), '.3g')} | {n / r['default_s']:,.0f} | "
+                     f"{n / r['kcs_s']:,.0f} | {per_cpu_s(n, r.get('kcs_cpu_s'))} | "
+                     f"{num(r.get('kcs_iterations'), 'd')} | "
+                     f"{n / max(r['refine_s'], 1e-12):,.0f} | {num(r.get('refine_sweeps'), 'd')} | "
+                     f"{r['default_s']:.3g} | {num(r.get('default_cpu_s'), '.3g')} | {n / r['default_s']:,.0f} | "
+                     f"{per_cpu_s(n, r.get('default_cpu_s'))} | "
                      f"{kb(r.get('kcs_bytes_per_frame'))} | {kb(r.get('default_bytes_per_frame'))} |")
     lines.append("")
     lines.append("Fastest of repeated runs (wall clock); CPU s is that run's process time (all threads); "

@@ -19,8 +19,10 @@ thresholding, SVT). The penalty weight follows a continuation schedule: in the f
 falls geometrically from ``tau_range[0]`` to ``tau_range[1]`` times the spectral norm of the first
 gradient (1e-1 to 1e-4), so that the equality holds at the end as far as the data allow; later
 passes, warm-started from the previous ``A``, stay at the small ``tau``. The singular values of the
-(3F x 3K) matrix ``A`` come from its 3K x 3K Gram matrix, so an iteration costs O(F K L); with
-one weight per frame the steps run in the eigenbasis of ``S S^T``, where it is diagonal. The
+(3F x 3K) matrix ``A`` come from its 3K x 3K Gram matrix, so an iteration costs O(F K L). The
+steps run in camera axes, on ``R_k A_k`` (a block-diagonal rotation of the stacked ``A``, which
+leaves its singular values alone), where ``P_k = s_k [I 0]``; with one weight per frame also in the
+eigenbasis of ``S S^T``, where a descent step is a per-frame, per-column factor. The
 camera step starts from the previous rotations (one Gauss-Newton step per pass: more did not change
 the result).
 
@@ -63,7 +65,7 @@ def bone_observations(chain: Any, tracks: np.ndarray, weights: np.ndarray) -> tu
     seen = np.isfinite(tracks).all(-1)
     w = np.where(seen, weights, 0.0)
     Wz = np.where(seen[..., None], tracks, 0.0)
-    Wb = np.einsum("jl,fjc->flc", C, Wz)
+    Wb = C.T @ Wz
     parent = np.argmin(C, axis=0)
     child = np.argmax(C, axis=0)
     wb = np.minimum(w[:, parent], w[:, child])
@@ -114,12 +116,13 @@ def _pose_basis(tracks, weights, P, X0, n_basis):
     return evecs[:, ::-1][:, :k].T.copy()
 
 
-def _svt(A: np.ndarray, tau: float) -> tuple[np.ndarray, float]:
+def _svt(A: np.ndarray, tau: float, out: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """Singular value thresholding of the stacked (3F x 3K) matrix A given as (F, 3, 3K).
 
     The right singular vectors V and values come from the small Gram matrix, and the result is
     A V diag(gain) V^T = A N: one product with an (3K x 3K) matrix, or two thin ones through
-    the r kept directions when r < 3K / 2 (the thresholded rank is often low)."""
+    the r kept directions when r < 3K / 2 (the thresholded rank is often low). ``out``: an array
+    like A to write the result to."""
     M = A.reshape(-1, A.shape[-1])
     evals, V = np.linalg.eigh(M.T @ M)
     sig = np.sqrt(np.maximum(evals, 0.0))
@@ -127,8 +130,12 @@ def _svt(A: np.ndarray, tau: float) -> tuple[np.ndarray, float]:
     keep = shrunk > 0
     Vk = V[:, keep]
     Vg = Vk * (shrunk[keep] / sig[keep])
-    out = (M @ Vg) @ Vk.T if 2 * Vk.shape[1] < M.shape[1] else M @ (Vg @ Vk.T)
-    return out.reshape(A.shape), float(shrunk.sum())
+    res = np.empty(A.shape) if out is None else out
+    if 2 * Vk.shape[1] < M.shape[1]:
+        np.matmul(M @ Vg, Vk.T, out=res.reshape(M.shape))
+    else:
+        np.matmul(M, Vg @ Vk.T, out=res.reshape(M.shape))
+    return res, float(shrunk.sum())
 
 
 def _PA(P: np.ndarray, A: np.ndarray) -> np.ndarray:
@@ -141,51 +148,58 @@ def _PtG(P: np.ndarray, G: np.ndarray) -> np.ndarray:
     return np.matmul(np.swapaxes(P, -1, -2), G)
 
 
-def _solve_A(A, P, S, R, wb, taus):
-    """FISTA on tau ||A||_* + 1/2 sum_k || (P_k A_k S - R_k) sqrt(w_k) ||^2, one step per tau in taus."""
+def _solve_A(A, Rot, s, S, R, wb, taus):
+    """FISTA on tau ||A||_* + 1/2 sum_k || (P_k A_k S - R_k) sqrt(w_k) ||^2, one step per tau in taus,
+    with P_k = s_k Rot_k[:2].
+
+    The steps run in camera axes, on Rot_k A_k: stacking the frames' rotations gives a block-diagonal
+    orthogonal matrix, so the nuclear norm, and the SVT with it, are unchanged, while P_k becomes
+    s_k [I 0]: the data term acts on the first two rows only and the gradient needs no per-frame
+    3 x 3 products. The arrays are rows-first (3, F, 3K), so those two rows are one contiguous block."""
     F, m = A.shape[0], A.shape[-1]
     # Lipschitz constant of the gradient: max_k s_k^2 * lambda_max(S diag(w_k) S^T) <= max_k s_k^2 * ||S||^2 max w
-    s2 = (P**2).sum(-1).max(-1)
-    lip = float((s2 * wb.max(-1)).max() * np.linalg.norm(S, 2) ** 2)
+    lip = float((s**2 * wb.max(-1)).max() * np.linalg.norm(S, 2) ** 2)
     if lip <= 0:
         return A
     step = 1.0 / lip
     St = np.ascontiguousarray(S.T)
+    Rc = np.ascontiguousarray(np.swapaxes(R, 0, 1))  # (2, F, L)
     wk = wb[:, 0]
-    if (wb == wk[:, None]).all():
-        # One weight per frame (every bone seen, equal confidences): the gradient
-        # w_k (P_k^T P_k A_k S S^T - P_k^T R_k S^T) needs no per-bone products in the loop, and in
-        # the eigenbasis U of S S^T (A -> A U, which the SVT commutes with) S S^T is diagonal.
-        lam, U = np.linalg.eigh(S @ St)
-        PtP = _PtG(P, P) * (step * wk)[:, None, None]
-        c = _PtG(P, ((R * (step * wk)[:, None, None]).reshape(2 * F, -1) @ (St @ U)).reshape(F, 2, m))
-        A_prev = (A.reshape(-1, m) @ U).reshape(A.shape)
+    uniform = bool((wb == wk[:, None]).all())
+    # One weight per frame (every bone seen, equal confidences): in the eigenbasis U of S S^T (A -> A U,
+    # which the SVT commutes with) S S^T = U diag(lam) U^T is diagonal, and the descent step is a
+    # product with a per-frame, per-column factor.
+    lam, U = np.linalg.eigh(S @ St) if uniform else (None, np.eye(m))
+    A_prev = (np.swapaxes(Rot @ A, 0, 1).reshape(3 * F, m) @ U).reshape(3, F, m)
+    if uniform:
+        fac = 1.0 - (step * wk * s**2)[:, None] * lam  # (F, 3K)
+        c = (Rc.reshape(2 * F, -1) @ (St @ U)).reshape(2, F, m) * (step * wk * s)[:, None]
 
-        def descent(Y):  # Y - step * gradient(Y)
-            Z = np.matmul(PtP, Y)
-            Z *= -lam
-            Z += Y
-            Z += c
-            return Z
+        def descent(Y):  # Y - step * gradient(Y) in place, the third row unchanged
+            Y[:2] *= fac
+            Y[:2] += c
+            return Y
     else:
-        U, A_prev = None, A.copy()
+        sw = s[:, None] * wb  # (F, L)
 
         def descent(Y):
-            res = (_PA(P, Y).reshape(2 * F, m) @ S).reshape(F, 2, -1) - R  # (F, 2, L)
-            return Y - step * _PtG(P, ((res * wb[:, None, :]).reshape(2 * F, -1) @ St).reshape(F, 2, m))
-    Y, t = A_prev.copy(), 1.0
+            res = (Y[:2].reshape(2 * F, m) @ S).reshape(2, F, -1) * s[:, None] - Rc  # (2, F, L)
+            res *= sw
+            Y[:2] -= step * (res.reshape(2 * F, -1) @ St).reshape(2, F, m)
+            return Y
+    # three buffers in turn, no array allocated per step: Y (descended in place), A_prev, spare
+    Y, spare, t = A_prev.copy(), np.empty_like(A_prev), 1.0
     for tau in taus:
-        A_new, _ = _svt(descent(Y), step * tau)
+        A_new, _ = _svt(descent(Y), step * tau, out=spare)
         t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
-        # Y = A_new + beta (A_new - A_prev), written to reuse the buffers
+        # Y = A_new + beta (A_new - A_prev), into the descended Y's buffer
         beta = (t - 1.0) / t_new
         np.subtract(A_new, A_prev, out=Y)
         Y *= beta
         Y += A_new
-        A_prev, t = A_new, t_new
-    if U is not None:
-        return (A_prev.reshape(-1, m) @ U.T).reshape(A.shape)
-    return A_prev
+        spare, A_prev, t = A_prev, A_new, t_new
+    del Y, spare  # the buffers go before the result is turned back to world axes (peak memory)
+    return np.swapaxes(Rot, 1, 2) @ np.swapaxes((A_prev.reshape(3 * F, m) @ U.T).reshape(3, F, m), 0, 1)
 
 
 def kcs_factorize(
@@ -228,9 +242,8 @@ def kcs_factorize(
     Dm = np.ascontiguousarray(chain.D)
     Wt = np.swapaxes(np.where(np.isfinite(tracks), tracks, 0.0), 1, 2)  # (F, 2, J)
 
-    def record(A, P):
+    def record(B, P):
         # Reprojection RMS with the best translation per frame, all in (F, 2, J) layout (cheap).
-        B = (A.reshape(-1, A.shape[-1]) @ S).reshape(F, 3, -1) + B0  # (F, 3, L)
         Xt = (B[:, :, :nb].reshape(-1, nb) @ Dm).reshape(F, 3, -1)  # (F, 3, J)
         rms, t = reprojection_with_translations(Wt, weights, Xt, P)
         hist["reprojection"].append(rms)
@@ -239,7 +252,7 @@ def kcs_factorize(
             hist.setdefault("error_3d", []).append(float(error_fn(X, truth)))
         return X, t
 
-    X, t = record(A, P)
+    X, t = record(np.broadcast_to(B0, (F,) + B0.shape), P)
     # The threshold scale: spectral norm of the gradient at A = 0 (where every singular value would
     # be thresholded away if tau were larger).
     R = Wb_cols - _PA(P, B0)
@@ -254,10 +267,10 @@ def kcs_factorize(
         # Continuation: the first pass lowers tau from tau_hi to tau_lo; later passes, warm-started
         # from the previous A, stay at tau_lo.
         taus = np.geomspace(tau_hi, tau_lo, svt_steps) if it == 1 else np.full(max(svt_steps // 4, 1), tau_lo)
-        A = _solve_A(A, P, S, R, wb, taus)
+        A = _solve_A(A, Rot, s, S, R, wb, taus)
         B = (A.reshape(-1, A.shape[-1]) @ S).reshape(F, 3, -1) + B0
         P, s, Rot = fit_cameras(Wb, np.swapaxes(B, 1, 2), wb, return_rotation=True, R0=Rot, n_iter=1)
-        X, t = record(A, P)
+        X, t = record(B, P)
         r0, r1 = hist["reprojection"][-2], hist["reprojection"][-1]
         # Converged when the reprojection RMS changes by less than tol times the initial pose's
         # (at zero noise the RMS itself tends to 0) or the bones move by less than tol times their

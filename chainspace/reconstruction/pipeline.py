@@ -637,7 +637,9 @@ def _stages(W, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis,
                    f"{res.n_iter} iterations, started from the {res.start}")
         # Keep the refinement only if the tracks say it is better: the track score (normalised
         # reprojection + bone-length variation) of each stage, never the truth.
-        sk, sr = track_score(W, c, chain, kcs.poses, kcs.cameras, kcs.translations), track_score(W, c, chain, poses, P, t)
+        size = _spread(W, c > 0)
+        sk = track_score(W, c, chain, kcs.poses, kcs.cameras, kcs.translations, spread=size)
+        sr = track_score(W, c, chain, poses, P, t, spread=size)
         history["selection"] = {"kcs": list(sk), "refine": list(sr)}
         if sk[0] < sr[0]:
             poses, P, t = kcs.poses, kcs.cameras, kcs.translations
@@ -658,14 +660,14 @@ def _result(W, c, given, chain, method, poses, P, t, converged, n_iter, message,
                           int(n_iter), message, history, timings)
 
 
-def track_score(W, c, chain, poses, P, t) -> tuple[float, float, float]:
+def track_score(W, c, chain, poses, P, t, *, spread: float | None = None) -> tuple[float, float, float]:
     """What the tracks say about a reconstruction, lower is better: ``(score, rms, variation)``
     with ``rms`` the weighted reprojection RMS under the stage's own weak-perspective cameras
     divided by the subject's size in the image (:func:`_spread`: the median distance of the
     points from their centroid) and ``variation`` the bone-length variation across frames (summed
-    standard deviations over summed mean lengths of the bones). ``score = rms + variation``."""
-    seen = c > 0
-    rms = reprojection_rms(W, c, poses, P, t) / _spread(W, seen)
+    standard deviations over summed mean lengths of the bones). ``score = rms + variation``.
+    ``spread``: that size if already known (two stages scored on the same tracks)."""
+    rms = reprojection_rms(W, c, poses, P, t) / (_spread(W, c > 0) if spread is None else spread)
     lengths = chain.bone_lengths(poses)[:, :chain.n_bones]
     var = float(np.nanstd(lengths, axis=0).sum() / max(np.nanmean(lengths, axis=0).sum(), 1e-300))
     return float(rms + var), float(rms), var

@@ -107,34 +107,54 @@ class _Problem:
         # arrays (on (F, n, 3) every product over the short last axis is several times slower)
         self.u_par, self.uy, self.yxu = _coords(u), _dot(u, y), _coords(_cross(y, u))
         self.glob_c = _coords(self.glob)
+        self.Wb_c = _coords(self.Wb)
 
     def prior(self, x: np.ndarray, bones: Any = None) -> np.ndarray:
         """Prior bones (F, n, 3): the initial pose's bone turned by the smallest rotation that takes
         the initial pose's parent bone onto the current parent bone (so a knee keeps its bending
         direction relative to the thigh); the initial pose's own bone where there is no parent."""
+        return np.moveaxis(self.prior_coords(x, bones), 0, -1)
+
+    def prior_coords(self, x: np.ndarray, bones: Any = None) -> np.ndarray:
+        """:meth:`prior` coordinates first, (3, F, n)."""
         idx = np.arange(self.Wb.shape[1]) if bones is None else np.asarray(bones)
-        has = np.flatnonzero(self.parent[idx] >= 0)
+        has, q, u, y, yxu, uy = self._constants(idx)
         if not len(has):
-            return np.take(self.glob, idx, axis=1)
-        q = self.parent[idx[has]]
-        k = self.slot[idx[has]]
-        u = self.u_par[:, :, k]
-        y = self.glob_c[:, :, idx[has]]
+            return self.glob_c[:, :, idx]
         v = _coords(np.take(x, q, axis=1))
         v /= np.maximum(np.sqrt(_cdot(v, v)), 1e-300)
         c = _cdot(u, v)
         # Rodrigues for the rotation taking u to v, with w = u x v: y c + w x y + w (w.y) / (1 + c),
         # where w x y = v (u.y) - u (v.y) and w.y = v.(y x u)
         vy = _cdot(v, y)
-        f = _cdot(v, self.yxu[:, :, k]) / np.maximum(1.0 + c, 1e-9)
+        f = _cdot(v, yxu) / np.maximum(1.0 + c, 1e-9)
         w = (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
-        uy, keep = self.uy[:, k], c > -0.999
-        rot = np.stack([np.where(keep, y[i] * c + v[i] * uy - u[i] * vy + w[i] * f, y[i]) for i in range(3)], -1)
-        if len(has) == len(idx):
-            return rot
-        out = np.take(self.glob, idx, axis=1)
-        out[:, has] = rot
+        whole = len(has) == len(idx)
+        out = np.empty(y.shape) if whole else self.glob_c[:, :, idx]
+        for i in range(3):
+            r = y[i] * c
+            r += v[i] * uy
+            r -= u[i] * vy
+            r += w[i] * f
+            if whole:
+                out[i] = r
+            else:
+                out[i][:, has] = r
+        flip = ~(c > -0.999)  # parent turned about backwards: the rotation is ill-defined, keep y
+        if flip.any():
+            if whole:
+                out[:, flip] = y[:, flip]
+            else:
+                out[:, :, has] = np.where(flip, y, out[:, :, has])
         return out
+
+    def _constants(self, idx: np.ndarray) -> tuple:
+        """The prior's constant arrays for the bones idx: which of them have a parent bone, those
+        parents, and the initial-pose arrays of those bones."""
+        has = np.flatnonzero(self.parent[idx] >= 0)
+        k = self.slot[idx[has]]
+        return (has, self.parent[idx[has]], self.u_par[:, :, k], self.glob_c[:, :, idx[has]], self.yxu[:, :, k],
+                self.uy[:, k])
 
 
 def _coords(a: np.ndarray) -> np.ndarray:
@@ -195,16 +215,16 @@ def _accel(x: np.ndarray) -> np.ndarray:
 def objective_terms(pb: _Problem, x: np.ndarray, l: np.ndarray, bones: Any = None) -> dict[str, np.ndarray]:
     """Each term of E per bone, (L,) arrays (image units squared); only ``bones`` if given."""
     idx = np.arange(x.shape[1]) if bones is None else np.asarray(bones)
-    xb = np.take(x, idx, axis=1)
-    Wb = np.take(pb.Wb, idx, axis=1)
+    xc = _coords(np.take(x, idx, axis=1))  # (3, F, n): sums over frames of contiguous rows
+    Wb, wb = pb.Wb_c[:, :, idx], pb.wb[:, idx]
     s = pb.s[:, None]
-    r = np.sqrt((s * xb[..., 0] - Wb[..., 0]) ** 2 + (s * xb[..., 1] - Wb[..., 1]) ** 2)
-    data = np.einsum("fl,fl->l", np.take(pb.wb, idx, axis=1), _huber(r, pb.delta))
-    length = pb.lam_len * pb.s2 * ((np.sqrt(_dot(xb, xb)) - l[idx]) ** 2).sum(0)
-    a = _accel(xb)
-    smooth = pb.lam_smooth * pb.s2 * np.einsum("fli,fli->l", a, a)
-    d = xb - pb.prior(x, idx)
-    prior = pb.lam_prior * pb.s2 * np.einsum("fli,fli->l", d, d)
+    r = np.sqrt((s * xc[0] - Wb[0]) ** 2 + (s * xc[1] - Wb[1]) ** 2)
+    data = (wb * _huber(r, pb.delta)).sum(0)
+    length = pb.lam_len * pb.s2 * ((np.sqrt(_cdot(xc, xc)) - l[idx]) ** 2).sum(0)
+    a = xc[:, 2:] - 2.0 * xc[:, 1:-1] + xc[:, :-2]
+    smooth = pb.lam_smooth * pb.s2 * _cdot(a, a).sum(0)
+    d = xc - pb.prior_coords(x, idx)
+    prior = pb.lam_prior * pb.s2 * _cdot(d, d).sum(0)
     return {"data": data, "length": length, "smooth": smooth, "prior": prior}
 
 
@@ -244,7 +264,7 @@ def _sign_proposal(pb: _Problem, x: np.ndarray, l: np.ndarray, bones: Any) -> np
     """Proposed bones ``x[:, bones]`` (F, n, 3) with depths of length l_b, their signs from a
     second-order Viterbi pass over frames (vectorised over the bones). The prior is evaluated at x."""
     idx = np.asarray(bones)
-    prior_z = np.moveaxis(pb.prior(x, idx)[..., 2], 0, -1)  # (n, F)
+    prior_z = pb.prior_coords(x, idx)[2].T  # (n, F)
     xb = x[:, idx]
     m = np.sqrt(np.maximum(l[idx] ** 2 - (xb[..., :2] ** 2).sum(-1), 0.0)).T  # (n, F)
     z = np.stack([m, -m])  # (2, n, F): state 0 = towards the viewer's +z
@@ -260,7 +280,7 @@ def _viterbi(unary: np.ndarray, z: np.ndarray, k_acc: float) -> np.ndarray:
 
     The states are pairs of consecutive signs (4 states, so the acceleration term is exact). Not
     the textbook forward pass with backtracking, which is a Python loop over frames: forward and
-    backward min-plus messages from blocked prefix products (a loop over about sqrt(F) steps
+    backward min-plus messages from blocked prefix products (loops over about sqrt(F) steps
     vectorised over the blocks, :func:`_prefix_minplus`), and the state of each frame pair the
     minimiser of its min-marginal (the optimal path wherever it is unique).
     """
@@ -268,39 +288,53 @@ def _viterbi(unary: np.ndarray, z: np.ndarray, k_acc: float) -> np.ndarray:
     if F < 3:
         return unary.argmin(0)
     K = F - 2  # transitions between pairs (s_k, s_k+1) -> (s_k+1, s_k+2)
-    b = max(int(np.sqrt(K)), 1)
-    nb = -(-K // b)
-    T = np.full((2, 2, 2, 2, nb * b, n), np.inf)  # [a, bb] -> [bb, c], transition k, chain
+    T = np.empty((2, 2, 2, n, K))  # [a, bb, c]: pair (a, bb) -> (bb, c), chain, transition k
     for a in (0, 1):
         for bb in (0, 1):
             for c in (0, 1):
-                T[a, bb, bb, c, :K] = (k_acc * (z[a, :, :-2] - 2.0 * z[bb, :, 1:-1] + z[c, :, 2:]) ** 2
-                                       + unary[c, :, 2:]).T
-    T[..., K:, :] = np.where(np.eye(4, dtype=bool), 0.0, np.inf).reshape(2, 2, 2, 2, 1, 1)  # padding
-    # blocks: transition c b + j -> T[j, :, :, c]
-    T = np.ascontiguousarray(T.reshape(4, 4, nb, b, n).transpose(3, 0, 1, 2, 4))
-    init = (unary[:, None, :, 0] + unary[None, :, :, 1]).reshape(4, n)
-    fwd = _prefix_minplus(init, T)[:K + 1]
-    bwd = _prefix_minplus(np.zeros((4, n)), np.swapaxes(T[::-1, :, :, ::-1], 1, 2))[::-1][:K + 1]
-    p = (fwd + bwd).argmin(1)  # (F - 1, n): best pair state of frames (k, k + 1)
+                T[a, bb, c] = k_acc * (z[a, :, :-2] - 2.0 * z[bb, :, 1:-1] + z[c, :, 2:]) ** 2 + unary[c, :, 2:]
+    init = unary[:, None, :, 0] + unary[None, :, :, 1]
+    fwd = _prefix_minplus(init, T)
+    # backward: the same recursion on the reversed chain, whose pairs are (later, earlier) sign
+    bwd = _prefix_minplus(np.zeros((2, 2, n)), T.transpose(2, 1, 0, 3, 4)[..., ::-1])
+    p = (fwd + np.swapaxes(bwd, 1, 2)[::-1]).reshape(K + 1, 4, n).argmin(1)  # best pair state of frames (k, k + 1)
     return np.concatenate([p // 2, p[-1:] % 2]).T
 
 
 def _prefix_minplus(init: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """All min-plus messages m_0 = init (S, n), m_(i+1) = m_i (x) T_i, (x) = min over the state of
-    the sum, for transitions given in blocks (b, S, S, nb, n), T_(c b + j) = T[j, :, :, c]:
-    (nb b + 1, S, n)."""
-    b, S, _, nb, n = T.shape
-    pref = np.empty(T.shape)  # pref[j, :, :, c]: product of the first j + 1 transitions of block c
-    pref[0] = T[0]
+    """All min-plus messages over pairs of consecutive states, m_0 = init (2, 2, n) and
+    m_(k+1)[b, c] = min_a m_k[a, b] + T[a, b, c, :, k] for transitions T (2, 2, 2, n, K):
+    (K + 1, 2, 2, n).
+
+    In blocks of about sqrt(K) transitions: each block's min-plus product (a loop over the block
+    length, vectorised over the blocks), the messages at the block starts from them (a loop over
+    the blocks), then the messages inside all blocks at once (a loop over the block length). A
+    pair (a, b) only goes to a pair (b, c), so a step is a minimum over the two values of a."""
+    n, K = T.shape[3:]
+    b = max(int(np.sqrt(K)), 1)
+    nb = -(-K // b)
+    Tp = np.zeros((2, 2, 2, n, nb * b))  # padded at the end: the messages there are cut off
+    Tp[..., :K] = T
+    Tb = np.ascontiguousarray(Tp.reshape(2, 2, 2, n, nb, b).transpose(5, 0, 1, 2, 3, 4))  # (b, a, bb, c, n, nb)
+    # prod[s, bb, c]: least cost from the pair s at a block's start to the pair (bb, c) after j + 1 steps
+    prod = np.full((4, 2, 2, n, nb), np.inf)
+    first = prod.reshape(2, 2, 2, 2, n, nb)
+    for bb in (0, 1):
+        first[:, bb, bb] = Tb[0, :, bb]
     for j in range(1, b):
-        pref[j] = (pref[j - 1][:, :, None] + T[j][None]).min(1)
-    starts = np.empty((nb, S, n))  # messages at the block starts
-    starts[0] = init
-    for c in range(1, nb):
-        starts[c] = (starts[c - 1][:, None, :] + pref[-1, :, :, c - 1]).min(0)
-    out = (np.swapaxes(starts, 0, 1)[None, :, None] + pref).min(1)  # (b, S, nb, n)
-    return np.concatenate([init[None], out.transpose(2, 0, 1, 3).reshape(nb * b, S, n)])
+        prod = np.minimum(prod[:, 0, :, None] + Tb[j, 0], prod[:, 1, :, None] + Tb[j, 1])
+    prod = prod.reshape(4, 4, n, nb)
+    starts = np.empty((nb, 4, n))  # messages at the block starts
+    starts[0] = init.reshape(4, n)
+    for i in range(1, nb):
+        starts[i] = (starts[i - 1][:, None, :] + prod[..., i - 1]).min(0)
+    msgs = np.empty((b + 1, 2, 2, n, nb))
+    msgs[0] = np.moveaxis(starts, 0, -1).reshape(2, 2, n, nb)
+    for j in range(b):
+        m = msgs[j]
+        np.minimum(m[0, :, None] + Tb[j, 0], m[1, :, None] + Tb[j, 1], out=msgs[j + 1])
+    out = np.concatenate([msgs[:b].transpose(4, 0, 1, 2, 3).reshape(nb * b, 2, 2, n), msgs[b, ..., -1][None]])
+    return out[:K + 1]
 
 
 def _interpolated_xy(Wb: np.ndarray, wb: np.ndarray, s: np.ndarray, fallback: np.ndarray,
@@ -336,12 +370,12 @@ def _smooth_series(y: np.ndarray, w: np.ndarray, lam: float) -> np.ndarray:
     if F < 3 or lam <= 0:
         return y.copy()
     d0, d1, d2 = _smooth_bands(F)
-    ab = np.zeros((3, L, F))
-    ab[2] = w.T + lam * d0 + 1e-9 * lam
-    ab[1, :, 1:] = lam * d1
-    ab[0, :, 2:] = lam * d2
+    ab = np.zeros((3, L, F))  # lower banded storage (see _gauss_newton)
+    ab[0] = w.T + lam * d0 + 1e-9 * lam
+    ab[1, :, :-1] = lam * d1
+    ab[2, :, :-2] = lam * d2
     rhs = np.swapaxes(w[..., None] * y, 0, 1).reshape(L * F, -1)
-    z = solveh_banded(ab.reshape(3, -1), rhs, check_finite=False)
+    z = solveh_banded(ab.reshape(3, -1), rhs, lower=True, check_finite=False)
     return np.swapaxes(z.reshape(L, F, -1), 0, 1)
 
 
@@ -380,16 +414,19 @@ def _gauss_newton(pb: _Problem, x: np.ndarray, l: np.ndarray) -> np.ndarray:
     # bones in groups of about a million unknowns: few calls, bounded memory for long sequences
     for part in np.array_split(np.arange(L), -(-3 * F * L // 2**20)):
         up = ut[part]
-        ab = np.zeros((7,) + up.shape)  # upper banded storage
-        ab[6] = kl * up**2 + kp + ks * d0[:, None]
-        ab[6, ..., :2] += hs2[part, :, None]
-        ab[5, ..., 1] = kl * up[..., 0] * up[..., 1]
-        ab[5, ..., 2] = kl * up[..., 1] * up[..., 2]
-        ab[4, ..., 2] = kl * up[..., 0] * up[..., 2]
-        ab[3, :, 1:] = ks * d1[:, None]
-        ab[0, :, 2:] = ks * d2[:, None]
-        ab[6] += 1e-12 * ab[6].max()  # a ridge: huge smoothness or length weights leave it singular
-        step[part] = solveh_banded(ab.reshape(7, -1), rhs[part].reshape(-1), check_finite=False).reshape(up.shape)
+        # lower banded storage, ab[d, i] = M[i + d, i] (LAPACK's banded Cholesky runs about twice as
+        # fast on it as on the upper form)
+        ab = np.zeros((7,) + up.shape)
+        ab[0] = kl * up**2 + kp + ks * d0[:, None]
+        ab[0, ..., :2] += hs2[part, :, None]
+        ab[1, ..., 0] = kl * up[..., 0] * up[..., 1]
+        ab[1, ..., 1] = kl * up[..., 1] * up[..., 2]
+        ab[2, ..., 0] = kl * up[..., 0] * up[..., 2]
+        ab[3, :, :-1] = ks * d1[:, None]
+        ab[6, :, :-2] = ks * d2[:, None]
+        ab[0] += 1e-12 * ab[0].max()  # a ridge: huge smoothness or length weights leave it singular
+        step[part] = solveh_banded(ab.reshape(7, -1), rhs[part].reshape(-1), lower=True,
+                                   check_finite=False).reshape(up.shape)
     return x + np.swapaxes(step, 0, 1)
 
 
