@@ -32,7 +32,7 @@ def _in_front(fit: dict) -> bool:
     return bool((fit["view"].apply(fit["pos"])[1][..., 2] > 0).all())
 
 
-def _pnp_camera(x: np.ndarray, tracks: np.ndarray, w: np.ndarray, f: float, c: np.ndarray, weak) -> _PinholeView | None:
+def _pnp_camera(x: np.ndarray, tracks: np.ndarray, w: np.ndarray, f: float, c: np.ndarray) -> _PinholeView | None:
     """The pinhole camera of focal f, principal point c that best sees the points x (F, J, 3, base frame)
     on the tracks (F, J, 2, square pixels), all frames' points pooled: OpenCV's iterative PnP (a DLT
     start, then Levenberg-Marquardt). None when it fails or puts the points behind the camera.
@@ -58,7 +58,7 @@ def _pnp_camera(x: np.ndarray, tracks: np.ndarray, w: np.ndarray, f: float, c: n
     R = cv2.Rodrigues(rv)[0]
     if (x[seen] @ R[2] + tv[2, 0] <= 0).any():  # see _in_front
         return None
-    return _PinholeView(R[None], tv.reshape(1, 3), float(f), np.asarray(c, float), weak.cam_of.copy(), False)
+    return _PinholeView(R[None], tv.reshape(1, 3), float(f), np.asarray(c, float), np.zeros(len(x), int), False)
 
 
 def _camera_covariance(robot: RobotKinematics, q: np.ndarray, view: _PinholeView, tracks: np.ndarray,
@@ -156,7 +156,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
             # start's motion can be far off under perspective, so the focal and the camera are chosen after
             # the IK
             cams = [_pinhole_from_weak(st["view"], pos0, f0, c, False)]
-            cams += [] if fit_focal else [_pnp_camera(pos0, tr, w, f0, c, st["view"])]
+            cams += [] if fit_focal else [_pnp_camera(pos0, tr, w, f0, c)]
             for pv in cams:
                 if pv is None:
                     continue
