@@ -1,6 +1,8 @@
 """The perspective refinement of a robot fit: one static pinhole camera (known intrinsics, or the
 focal length estimated) fitted with the joint angles on the reprojection error in pixels, started from
-the weak-perspective fit's winner and its mirror/flip alternatives (see :mod:`chainspace.robot.fit`).
+the weak-perspective fit's winner and its mirror/flip alternatives (see :mod:`chainspace.robot.fit`),
+each camera from the weak camera's pose and, with K known, from PnP on the start's points
+(:func:`_pnp_camera`); fits with points behind the camera are dropped (:func:`_in_front`).
 Perspective then decides the depth mirrors the weak fit left open: under the winner's camera the
 other starts' branches beyond each joint are tried on the winner's arm (:func:`_grafted`). The
 winner's standard deviations and alternatives: :func:`_trust`.

@@ -17,6 +17,12 @@ sigma is measured from the fit's own residuals: the robust (median) estimate of
 :func:`chainspace.robot.solver._noise_sigma`, corrected for the degrees of freedom the fit used
 (``n_obs / (n_obs - p_eff)``, ``p_eff = trace(H^-1 H_data)``; the residuals of a fit are smaller than
 the noise by the share of it the fitted parameters absorbed).
+
+What the fit does not know is reported as ``ambiguous`` joints (:func:`assess_fit`): where another
+motion fits as well (the fit's candidates, the depth flips, the wrist's exact Euler twins
+(:func:`_wrist_twins`) and, with ``search_ties``, the searches) and differs by more than
+:data:`AMBIGUOUS_DEG`; and where the fit misses a tracked point in most frames ("poor fit",
+:func:`poor_fit_joints`): a wrong basin nothing ties with is still not an answer.
 """
 
 from __future__ import annotations
