@@ -197,9 +197,10 @@ def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np
 
     Why: the likelihood-ratio tests compare the fit with the motions the fit's searches reached; when
     every search ends in a wrong basin (a small robot near the camera, seen from below: the double
-    pendulum's tip 2.5 times further off than its other points, in most frames, joint1 166 degrees off, squared residuals
-    640 px^2 where the true motion's basin has 148), nothing ties with the winner, but the fit still
-    does not explain the tracks, and its joints are not known."""
+    pendulum's tip 2.5 times further off than its other points in most frames, joint1 166 degrees
+    off, squared residuals 640 px^2 where the true motion's basin has 148), nothing ties with the
+    winner, but the fit still does not explain the tracks, and its joints are not known. The Solo12
+    (full ranges, seed 0): measured noise 3.6-3.9 px on 1 px tracks, joints up to 120 degrees off."""
     seen = (w > 0) & np.isfinite(rn)
     n = seen.sum(0)
     med = np.array([np.median(rn[seen[:, j], j]) if n[j] else 0.0 for j in range(rn.shape[1])])
