@@ -96,9 +96,12 @@ static pinhole camera ``u = f (R x + t)_xy / (R x + t)_z + c`` (rotation, transl
 URDF fixes the scale) and the joint angles of every frame are fitted on the perspective reprojection
 error in pixels, with the same robust loss, confidences and acceleration prior (the view
 :class:`~chainspace.robot.views._PinholeView`; the solvers are the weak fit's). Its start: the weak
-camera's rotation, the depth of the robot's centroid ``f / s`` from the weak scale s, then the camera
-alone, per-frame IK under it, all together, and the branch of every frame chosen again under the
-pinhole camera (the Viterbi pass above).
+camera's rotation, the depth of the robot's centroid ``f / s`` from the weak scale s (and, with K
+known, the camera OpenCV's PnP finds for the start's points: a small robot near the camera makes the
+weak motion, and so the weak camera, far off), then the camera alone and per-frame IK under it,
+alternated (of the two camera starts, the better fit is kept), all together, and the branch of every
+frame chosen again under the pinhole camera (the Viterbi pass above). A fit with points behind its
+camera (which a pinhole projects as it projects their mirror through the camera centre) is dropped.
 
 Perspective settles the depth mirror: a motion and its mirror image no longer project alike, so
 the perspective fit starts from the weak fit's winner *and* its distinct alternatives (mirror images,

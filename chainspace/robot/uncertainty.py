@@ -17,6 +17,12 @@ sigma is measured from the fit's own residuals: the robust (median) estimate of
 :func:`chainspace.robot.solver._noise_sigma`, corrected for the degrees of freedom the fit used
 (``n_obs / (n_obs - p_eff)``, ``p_eff = trace(H^-1 H_data)``; the residuals of a fit are smaller than
 the noise by the share of it the fitted parameters absorbed).
+
+What the fit does not know is reported as ``ambiguous`` joints (:func:`assess_fit`): where another
+motion fits as well (the fit's candidates, the depth flips, the wrist's exact Euler twins
+(:func:`_wrist_twins`) and, with ``search_ties``, the searches) and differs by more than
+:data:`AMBIGUOUS_DEG`; and where the fit misses a tracked point in most frames ("poor fit",
+:func:`poor_fit_joints`): a wrong basin nothing ties with is still not an answer.
 """
 
 from __future__ import annotations
@@ -207,6 +213,49 @@ def ambiguous_joints(robot: RobotKinematics, angles: np.ndarray, alternatives: l
     return (worst > AMBIGUOUS_DEG) & judged, worst
 
 
+# a tracked point whose median residual exceeds this many times the median the measured noise gives
+# (sigma sqrt(2 ln 2), the median of a 2D Gaussian error's length) is not explained by the fit
+POOR_FIT_RATIO = 2.0
+POOR_FIT_MIN_FRAMES = 5  # a point seen in fewer frames is not judged (its median is too noisy)
+
+
+def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np.ndarray,
+                    sigma: float) -> tuple[np.ndarray, list[str], np.ndarray]:
+    """Joints (nv,) that move a tracked point the fit does not explain, the names of those points, and
+    each point's ratio (J,) of its median residual to the noise's.
+
+    rn (F, J) residual lengths (px) of the fit q (F, nq), w (F, J) weights, sigma the measured pixel
+    noise per coordinate. A point is poorly fitted when it is seen in at least
+    :data:`POOR_FIT_MIN_FRAMES` frames and the median of its residual lengths exceeds
+    :data:`POOR_FIT_RATIO` times ``sigma sqrt(2 ln 2)`` (a median, so that a few outlying detections do
+    not count; a wrong basin misses a point in most frames). A poorly fitted point that no joint moves
+    (on the base) puts the camera in doubt, and with it every joint.
+
+    Why: the likelihood-ratio tests compare the fit with the motions the fit's searches reached; when
+    every search ends in a wrong basin (a small robot near the camera, seen from below: the double
+    pendulum's tip 2.5 times further off than its other points in most frames, joint1 166 degrees
+    off, squared residuals 640 px^2 where the true motion's basin has 148), nothing ties with the
+    winner, but the fit still does not explain the tracks, and its joints are not known. The Solo12
+    (full ranges, seed 0): measured noise 3.6-3.9 px on 1 px tracks, joints up to 120 degrees off."""
+    seen = (w > 0) & np.isfinite(rn)
+    n = seen.sum(0)
+    med = np.array([np.median(rn[seen[:, j], j]) if n[j] else 0.0 for j in range(rn.shape[1])])
+    # against the noise, or the typical point's median where that is lower (the measured noise is a
+    # median over every residual, which a badly fitted point pulls up)
+    typical = np.median(med[n >= POOR_FIT_MIN_FRAMES]) if (n >= POOR_FIT_MIN_FRAMES).any() else np.inf
+    ratio = med / max(min(sigma * np.sqrt(2 * np.log(2)), typical), 1e-12)
+    bad = (n >= POOR_FIT_MIN_FRAMES) & (ratio > POOR_FIT_RATIO)
+    if not bad.any():
+        return np.zeros(robot.nv, bool), [], ratio
+    frames = np.unique(np.linspace(0, len(q) - 1, min(len(q), 5)).round().astype(int))
+    jac = robot.jacobians(q[frames])[1]  # (f, J, 3, nv)
+    moves = np.linalg.norm(jac, axis=2).max(0) > 1e-9  # (J, nv)
+    joints = moves[bad].any(0)
+    if (~moves[bad].any(1)).any():  # a base point missed: the camera is off, so is every joint
+        joints[:] = True
+    return joints, [robot.chain.joints[j] for j in np.flatnonzero(bad)], ratio
+
+
 def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict]], var: float,
                tracks: np.ndarray, w: np.ndarray, prior, blind: np.ndarray, gauge: np.ndarray, wrong_side,
                side_why: str, search: bool = False) -> dict:
@@ -239,6 +288,15 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     alts = alternatives_of(robot, winner, scored, sigma, lambda x: "camera side" if "down" in x and wrong_side(x) else None)
     ambiguous, worst = ambiguous_joints(robot, robot.angles(q), alts, ~blind, rel)
     notes = []
+    poor, points, ratio = poor_fit_joints(robot, q, winner["out"][2], w, noise) if np.isfinite(noise) else \
+        (np.zeros(robot.nv, bool), [], None)
+    poor &= ~blind
+    if poor.any():
+        notes.append(f"poor fit: {', '.join(robot.joint_names[k] for k in np.flatnonzero(poor))}: the tracks of "
+                     f"{', '.join(points)} are fitted {ratio.max():.1f} times further off (median) than the noise "
+                     f"({noise:.2g} px) or the typical tracked point allow, so the fit ended in a wrong basin or the "
+                     "model does not match the robot; the reported motion is not known to be right")
+        ambiguous = ambiguous | poor
     if ambiguous.any():
         names = [f"{robot.joint_names[k]} ({worst[k]:.0f} {'mm' if robot.prismatic_v[k] else 'deg'} RMS)"
                  for k in np.flatnonzero(ambiguous)]
@@ -295,17 +353,19 @@ def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float,
         return []
 
     score = _scorer(robot, winner, scored, tracks, w, prior)
+    twins = _wrist_twins(robot, q, free)  # exact under any camera: scored as they are
     flips = _depth_flips(robot, q, view, free)
     if not refit:  # scored as mirrored: exact under weak perspective, a few pixels off under a pinhole
-        return [(score(m), {"q": m}) for m in flips]
+        return [(score(m), {"q": m}) for m in twins + flips]
     # and the best other continuous branch (_other_branch), refined and scored alike
     flips += [b["q"] for b in _other_branch(robot, winner, tracks, w, free, sigma)]
     distinct: list[np.ndarray] = []
     for m in flips:  # many links give the same twin: each is refitted once
         if not any(_same_motion(robot, m, o) for o in distinct + [q]):
             distinct.append(robot.continuous(m))
+    exact = [(score(m), {"q": m}) for m in twins]
     if not distinct:
-        return []
+        return exact
     F, K = len(q), len(distinct)
     if prior is None:  # frame by frame under the winner's camera, all twins at once
         idx = np.tile(np.arange(F), K)
@@ -316,7 +376,44 @@ def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float,
         ones = np.ones(view.n_params, bool)
         fits = [_smooth_lm(robot, m, tracks, w, view, free, ones, 20, 1e-8, delta, prior) for m in distinct]
         qs, rn = np.stack([f[0] for f in fits]), np.stack([f[2] for f in fits])
-    return [(score(qs[k], rn[k]), {"q": qs[k]}) for k in range(K)]
+    return exact + [(score(qs[k], rn[k]), {"q": qs[k]}) for k in range(K)]
+
+
+def _wrist_twins(robot: RobotKinematics, q: np.ndarray, free: np.ndarray) -> list[np.ndarray]:
+    """Motions (F, nq) that put every tracked point exactly where q (F, nq) does, by the Euler-angle
+    twin of three successive turning joints: (a + pi, -b, c + pi) or (a + pi, pi - b, c + pi) (ZYZ
+    and ZYX-like axes), each joint moved by whole turns into its limits. Only twins within the limits,
+    moving only free joints (``free`` (F, nv)), whose points match q's to 1e-6 of the robot's size in
+    every frame are returned.
+
+    Why: a wrist whose tracked points lie on its axes (the Kinova j2s6s200's, the wrist of most 6-axis
+    arms) shows the same points in both, in every frame and under any camera; the depth flips and the
+    per-frame IK searches did not reach it (Kinova from below, seed 0: joints 4-6 180 / 121 / 178
+    degrees off, reported observable, the true motion's squared residuals equal to the winner's)."""
+    a = robot.angles(q)
+    pos = robot.positions(q)
+    size = max(float(np.ptp(pos.reshape(-1, 3), axis=0).max()), 1e-9)
+    out: list[np.ndarray] = []
+    for k in range(robot.nv - 2):
+        if not (robot.turns_v[k:k + 3].all() and free[:, k:k + 3].all()):
+            continue
+        for mid in (-a[:, k + 1], np.pi - a[:, k + 1]):
+            b = a.copy()
+            b[:, k] += np.pi
+            b[:, k + 1] = mid
+            b[:, k + 2] += np.pi
+            for v in range(k, k + 3):  # whole turns into the limits (per frame: a twin need not be continuous)
+                lo, hi = robot.lower_v[v], robot.upper_v[v]
+                if np.isfinite(lo):
+                    b[:, v] += 2 * np.pi * np.ceil(np.maximum(lo - b[:, v] - 1e-9, 0.0) / (2 * np.pi))
+                if np.isfinite(hi):
+                    b[:, v] -= 2 * np.pi * np.ceil(np.maximum(b[:, v] - hi - 1e-9, 0.0) / (2 * np.pi))
+            if ((b < robot.lower_v - 1e-9) | (b > robot.upper_v + 1e-9)).any():
+                continue
+            qb = robot.from_angles(b)
+            if np.abs(robot.positions(qb) - pos).max() < 1e-6 * size:
+                out.append(robot.continuous(qb))
+    return out
 
 
 SHAKE_DEG = 20.0  # each observable joint's path shifted by this much either way: starts for other local minima

@@ -1,0 +1,77 @@
+"""Issue 21, target 1 (no silent failure): the perspective fit's PnP camera start, the wrist's exact
+twins as alternatives, and the poor-fit flag for tracked points the fit misses."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from chainspace.io.urdf import from_urdf
+from chainspace.robot.kinematics import RobotKinematics, _random_q
+from chainspace.robot.perspective import _in_front, _pnp_camera
+from chainspace.robot.uncertainty import POOR_FIT_RATIO, _wrist_twins, poor_fit_joints
+from chainspace.synthetic.robot import synthesize
+
+ROBOTS = Path(__file__).resolve().parents[1] / "robots"
+
+
+@pytest.fixture(scope="module")
+def arm():
+    chain = from_urdf(ROBOTS / "milling_arm.urdf")
+    return chain, RobotKinematics(chain.metadata["urdf_path"], chain)
+
+
+def _turn(d: np.ndarray) -> np.ndarray:
+    return np.abs((d + np.pi) % (2 * np.pi) - np.pi)
+
+
+def test_a_wrist_twin_puts_every_tracked_point_where_the_motion_does(arm):
+    chain, robot = arm
+    F = 6
+    q = _random_q(robot, np.random.default_rng(0), F)
+    twins = _wrist_twins(robot, q, np.ones((F, robot.nv), bool))
+    assert len(twins) >= 1
+    for t in twins:
+        assert np.abs(robot.positions(t) - robot.positions(q)).max() < 1e-9  # every point in place
+        d = _turn(robot.angles(t) - robot.angles(q))
+        assert d[:, :3].max() < 1e-9 and d[:, 3].min() > np.pi / 2  # the arm stays, the wrist turns over
+        assert (robot.clip(t) == t).all()  # within the limits
+    held = np.ones((F, robot.nv), bool)
+    held[:, 4] = False  # the wrist's middle joint held: no twin may move it
+    assert _wrist_twins(robot, q, held) == []
+
+
+def test_a_point_the_fit_misses_in_most_frames_flags_the_joints_that_move_it(arm):
+    chain, robot = arm
+    rng = np.random.default_rng(1)
+    F, J = 40, len(chain.joints)
+    q = _random_q(robot, rng, F)
+    w = np.ones((F, J))
+    rn = np.linalg.norm(rng.normal(size=(F, J, 2)), axis=-1)  # residual lengths of 1 px noise per coordinate
+    joints, points, ratio = poor_fit_joints(robot, q, rn, w, 1.0)
+    assert not joints.any() and points == [] and ratio.max() < POOR_FIT_RATIO
+    tip = J - 1
+    rn[:, tip] += 4.0  # a wrong basin: the tip 4 px off in every frame
+    rn[:3, 2] += 50.0  # a few outlying detections of another point are no poor fit
+    joints, points, ratio = poor_fit_joints(robot, q, rn, w, 1.0)
+    assert points == [chain.joints[tip]] and ratio[tip] > POOR_FIT_RATIO
+    moves = np.linalg.norm(robot.jacobians(q[::8])[1][:, tip], axis=1).max(0) > 1e-9
+    assert moves.any() and joints.tolist() == moves.tolist()
+    base = chain.joints.index(chain.root)
+    rn[:, base] += 4.0  # the base missed too: the camera is off, and with it every joint
+    assert poor_fit_joints(robot, q, rn, w, 1.0)[0].all()
+
+
+def test_pnp_finds_the_pinhole_camera_and_a_camera_behind_the_robot_is_refused(arm):
+    chain, robot = arm
+    trial = synthesize(chain, n_frames=5, noise_px=0.0, seed=3)  # the default realistic pinhole camera
+    K = np.asarray(trial.intrinsics.K, float)
+    tu = trial.intrinsics.undistort(trial.tracks)
+    tu[..., 1] = K[1, 2] + (tu[..., 1] - K[1, 2]) * K[0, 0] / K[1, 1]  # square pixels, as the fit's
+    w = np.isfinite(tu).all(-1).astype(float)
+    view = _pnp_camera(trial.positions, np.nan_to_num(tu), w, K[0, 0], K[:2, 2])
+    assert np.abs(view.R[0] - trial.camera_R).max() < 1e-5
+    assert np.abs(view.t[0] - trial.camera_t).max() < 1e-5 * np.linalg.norm(trial.camera_t)
+    assert _in_front(dict(view=view, pos=trial.positions))
+    behind = view.moved(np.r_[0.0, 0.0, 0.0, 0.0, 0.0, -2 * view.t[0, 2]])  # the camera past the robot
+    assert not _in_front(dict(view=behind, pos=trial.positions))
