@@ -60,6 +60,11 @@ def test_a_point_the_fit_misses_in_most_frames_flags_the_joints_that_move_it(arm
     base = chain.joints.index(chain.root)
     rn[:, base] += 4.0  # the base missed too: the camera is off, and with it every joint
     assert poor_fit_joints(robot, q, rn, w, 1.0)[0].all()
+    # noise-free tracks: the measured noise and the residuals are rounding, and their ratio says nothing
+    tiny = 1e-12 * np.linalg.norm(rng.normal(size=(F, J, 2)), axis=-1)
+    tiny[:, tip] *= 5.0
+    assert poor_fit_joints(robot, q, tiny, w, 1e-12)[0].any()  # without the floor: flagged
+    assert not poor_fit_joints(robot, q, tiny, w, 1e-12, extent=500.0)[0].any()
 
 
 def test_pnp_finds_the_pinhole_camera_and_a_camera_behind_the_robot_is_refused(arm):

@@ -217,10 +217,13 @@ def ambiguous_joints(robot: RobotKinematics, angles: np.ndarray, alternatives: l
 # (sigma sqrt(2 ln 2), the median of a 2D Gaussian error's length) is not explained by the fit
 POOR_FIT_RATIO = 2.0
 POOR_FIT_MIN_FRAMES = 5  # a point seen in fewer frames is not judged (its median is too noisy)
+# a median residual below this share of the tracks' extent is no misfit, whatever its ratio: on
+# noise-free tracks the measured noise is rounding (1e-12 px), and so is every residual it divides
+POOR_FIT_FLOOR = 1e-4
 
 
 def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np.ndarray,
-                    sigma: float) -> tuple[np.ndarray, list[str], np.ndarray]:
+                    sigma: float, extent: float = 0.0) -> tuple[np.ndarray, list[str], np.ndarray]:
     """Joints (nv,) that move a tracked point the fit does not explain, the names of those points, and
     each point's ratio (J,) of its median residual to the noise's.
 
@@ -228,7 +231,8 @@ def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np
     noise per coordinate. A point is poorly fitted when it is seen in at least
     :data:`POOR_FIT_MIN_FRAMES` frames and the median of its residual lengths exceeds
     :data:`POOR_FIT_RATIO` times ``sigma sqrt(2 ln 2)`` (a median, so that a few outlying detections do
-    not count; a wrong basin misses a point in most frames). A poorly fitted point that no joint moves
+    not count; a wrong basin misses a point in most frames) and :data:`POOR_FIT_FLOOR` times
+    ``extent``, the tracks' extent (px; 0: no floor). A poorly fitted point that no joint moves
     (on the base) puts the camera in doubt, and with it every joint.
 
     Why: the likelihood-ratio tests compare the fit with the motions the fit's searches reached; when
@@ -244,7 +248,7 @@ def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np
     # median over every residual, which a badly fitted point pulls up)
     typical = np.median(med[n >= POOR_FIT_MIN_FRAMES]) if (n >= POOR_FIT_MIN_FRAMES).any() else np.inf
     ratio = med / max(min(sigma * np.sqrt(2 * np.log(2)), typical), 1e-12)
-    bad = (n >= POOR_FIT_MIN_FRAMES) & (ratio > POOR_FIT_RATIO)
+    bad = (n >= POOR_FIT_MIN_FRAMES) & (ratio > POOR_FIT_RATIO) & (med > POOR_FIT_FLOOR * extent)
     if not bad.any():
         return np.zeros(robot.nv, bool), [], ratio
     frames = np.unique(np.linspace(0, len(q) - 1, min(len(q), 5)).round().astype(int))
@@ -288,7 +292,9 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     alts = alternatives_of(robot, winner, scored, sigma, lambda x: "camera side" if "down" in x and wrong_side(x) else None)
     ambiguous, worst = ambiguous_joints(robot, robot.angles(q), alts, ~blind, rel)
     notes = []
-    poor, points, ratio = poor_fit_joints(robot, q, winner["out"][2], w, noise) if np.isfinite(noise) else \
+    seen = np.isfinite(tracks).all(-1)
+    extent = float(np.ptp(tracks[seen], axis=0).max()) if seen.any() else 0.0
+    poor, points, ratio = poor_fit_joints(robot, q, winner["out"][2], w, noise, extent) if np.isfinite(noise) else \
         (np.zeros(robot.nv, bool), [], None)
     poor &= ~blind
     if poor.any():
