@@ -116,8 +116,9 @@ class ValidationReport:
         rel = [j["name"] for j in self.joints if j.get("status") == "relative to frame 0"]
         amb = [j for j in self.joints if j.get("status") == "ambiguous"]
         if amb:
-            out.append(f"- {', '.join(j['name'] for j in amb)}: ambiguous (other motions fit the tracks as well and "
-                       "differ there; listed, not judged): " + "; ".join(j.get("reason", "") for j in amb[:1]))
+            reasons = dict.fromkeys(j.get("reason", "") for j in amb)  # distinct, in order
+            out.append(f"- {', '.join(j['name'] for j in amb)}: ambiguous (another motion fits the tracks as well, or "
+                       "the fit does not explain them; listed, not judged): " + "; ".join(r for r in reasons if r))
         if rel:
             out.append(f"- {', '.join(rel)}: seen only relative to frame 0 (a turn of the camera looks the same), "
                        "so compared, and plotted, as the change since frame 0")
@@ -229,8 +230,12 @@ def _joint_errors(robot, fit, q, tq) -> list[dict[str, Any]]:
     ambiguous = joint_flags(fit, "ambiguous", len(names))
     std = getattr(fit, "q_std", None)
     std = np.asarray(std, float) if std is not None and np.shape(std) == (len(q), len(names)) else None
-    amb_reason = next((m.strip() for m in str(getattr(fit, "message", "")).split("; ") if m.startswith("ambiguous")),
-                      "")
+    # why each flagged joint is flagged: the message's "poor fit: ..." sentence where it names the joint,
+    # else its "ambiguous: ..." one (another motion ties)
+    parts = [m.strip() for m in str(getattr(fit, "message", "")).split("; ")]
+    tied = next((m for m in parts if m.startswith("ambiguous")), "")
+    poor = next((m for m in parts if m.startswith("poor fit")), "")
+    poor_names = set(poor.split(": ")[1].split(", ")) if poor.count(": ") >= 1 else set()
     if observable.size != robot.nv:  # a fit saved with one flag per q entry: flags of each joint's first entry
         first = [int(np.flatnonzero(robot._qv[:, v])[0]) for v in range(robot.nv)]
         observable = observable[first]
@@ -244,7 +249,7 @@ def _joint_errors(robot, fit, q, tq) -> list[dict[str, Any]]:
                                "rms": None, "max": None, "unit": "mm" if robot.prismatic_v[k] else "deg"}
         scale = np.degrees(1.0) if row["unit"] == "deg" else 1000.0
         if ambiguous[k]:
-            row["reason"] = amb_reason
+            row["reason"] = poor if name in poor_names else tied
         if std is not None and np.isfinite(std[:, k]).any():
             row["std_median"] = float(np.nanmedian(std[:, k]) * scale)
         if ta is not None and (obs or rel or ambiguous[k]):
