@@ -38,14 +38,21 @@ def test_block_tridiagonal_recursion_gives_the_diagonal_blocks_of_the_inverse():
     assert np.allclose(_block_tridiagonal_inverse_diagonal(A, B), want, atol=1e-12)
 
 
-def test_joint_std_is_the_dense_gauss_newton_covariance_with_camera_and_prior(arm):
-    chain, robot = arm
-    trial = synthesize(chain, n_frames=7, noise_px=1.0, seed=2, camera="static")
+def _std_problem(chain, robot, n_frames, seed):
+    """A noisy static-camera trial with its camera, a held direction (the first joint in frame 0, as
+    for a relative joint) and a motion prior: the inputs of joint_std and joint_covariance."""
+    trial = synthesize(chain, n_frames=n_frames, noise_px=1.0, seed=seed, camera="static")
     w = np.ones(trial.tracks.shape[:2])
     view = _camera_view(trial.positions, trial.tracks, w, False)
-    free = np.ones((7, robot.nv), bool)
-    free[0, 0] = False  # a held direction (the first joint in frame 0, as for a relative joint)
+    free = np.ones((n_frames, robot.nv), bool)
+    free[0, 0] = False
     prior = _motion_prior(_unseen(robot, w), 50.0, np.inf)
+    return trial, w, view, free, prior
+
+
+def test_joint_std_is_the_dense_gauss_newton_covariance_with_camera_and_prior(arm):
+    chain, robot = arm
+    trial, w, view, free, prior = _std_problem(chain, robot, 7, 2)
     std, sigma = joint_std(robot, trial.q, trial.tracks, w, view, free, None, prior)
     # the same matrix, assembled densely and inverted
     pos, jac = robot.jacobians(trial.q)
@@ -205,12 +212,7 @@ def test_joint_covariance_is_the_full_matrix_whose_diagonal_joint_std_reports(ar
     # the benchmark's check of a trial's correlated errors rests on this matrix: its diagonal must be
     # q_std's (the camera marginalised, the prior's coupling of frames included)
     chain, robot = arm
-    trial = synthesize(chain, n_frames=6, noise_px=1.0, seed=3, camera="static")
-    w = np.ones(trial.tracks.shape[:2])
-    view = _camera_view(trial.positions, trial.tracks, w, False)
-    free = np.ones((6, robot.nv), bool)
-    free[0, 0] = False
-    prior = _motion_prior(_unseen(robot, w), 50.0, np.inf)
+    trial, w, view, free, prior = _std_problem(chain, robot, 6, 3)
     std, sigma = joint_std(robot, trial.q, trial.tracks, w, view, free, None, prior)
     cov = joint_covariance(robot, trial.q, trial.tracks, w, view, free, None, prior)
     held = ~free.reshape(-1)
