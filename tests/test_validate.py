@@ -67,3 +67,17 @@ def test_bad_input(fitted):
         validate(fit, t.q, thresholds={"speed": 1})
     with pytest.raises(ChainspaceError):
         validate("not a fit")
+
+
+def test_each_flagged_joint_gets_its_own_reason(fitted):
+    # a fit's message can flag joints twice over: tied with another motion, or not explained by the fit
+    t, fit = fitted
+    poor = "poor fit: joint_a1, joint_a2: the tracks of base are fitted 3.0 times further off (median)"
+    tied = "ambiguous: joint_a4 (180 deg RMS), joint_a6 (180 deg RMS): 1 other motion(s) fit the tracks as well"
+    flagged = type(fit)(**{**fit.__dict__, "ambiguous": np.array([True, True, False, True, False, True]),
+                           "message": f"converged; {poor}; {tied}"})
+    rows = {j["name"]: j for j in validate(flagged, t.q).joints}
+    assert [rows[n]["status"] for n in ("joint_a1", "joint_a3", "joint_a4")] == ["ambiguous", "observable", "ambiguous"]
+    assert rows["joint_a1"]["reason"] == rows["joint_a2"]["reason"] == poor
+    assert rows["joint_a4"]["reason"] == rows["joint_a6"]["reason"] == tied
+    assert "reason" not in rows["joint_a3"] and not rows["joint_a1"]["judged"]
