@@ -59,10 +59,9 @@ def one_trial(chain, seed: int, n_frames: int, noise_px: float) -> dict:
     secs = time.perf_counter() - t0
     robot = fit.kinematics()
     d = fit.angles - robot.angles(trial.q)
-    d = np.where(robot.turns_v, (d + np.pi) % (2 * np.pi) - np.pi, d)
+    d = robot.wrap_angles(d)
     rel = np.asarray(fit.relative, bool)
-    d[:, rel] = np.where(robot.turns_v[rel], (d[:, rel] - d[0, rel] + np.pi) % (2 * np.pi) - np.pi,
-                         d[:, rel] - d[0, rel])
+    d[:, rel] = robot.wrap_angles(d - d[0])[:, rel]
     std = np.asarray(fit.q_std, float)
     judged = (np.asarray(fit.observable, bool) | rel)[None] & np.isfinite(std) & (std > 0)
     unit = np.where(robot.prismatic_v, 1000.0, np.degrees(1.0))

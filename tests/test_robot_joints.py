@@ -92,6 +92,15 @@ def test_kinova_continuous_joints_end_to_end(example_urdf, tmp_path):
 
 
 # ---------------------------------------------------------------------------- prismatic joints
+def test_angle_differences_wrap_on_turning_joints_only():
+    chain = shipped("milling_arm_on_track")
+    robot = RobotKinematics(chain.metadata["urdf_path"], chain)
+    d = np.full((2, robot.nv), 2 * np.pi - 0.1)  # a turn less 0.1 rad, or 6.18 m on the track
+    wrapped = robot.wrap_angles(d)
+    assert robot.prismatic_v.sum() == 1 and robot.turns_v.sum() == robot.nv - 1
+    assert np.allclose(wrapped[:, robot.turns_v], -0.1) and np.allclose(wrapped[:, robot.prismatic_v], d[0, 0])
+
+
 def test_track_mounted_arm_is_shipped_with_fixed_joints_between_tracked_links():
     chain = shipped("milling_arm_on_track")
     assert shipped_path("milling_arm_on_track").name == "milling_arm_on_track.urdf"

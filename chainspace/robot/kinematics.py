@@ -200,6 +200,11 @@ class RobotKinematics:
             out = np.array([self.pin.integrate(self.model, qf, vf) for qf, vf in zip(q, dv)])
         return self.clip(out) if clip else out
 
+    def wrap_angles(self, d: np.ndarray) -> np.ndarray:
+        """Differences of per-dof coordinates d (..., nv) (:meth:`angles`) with the angles that wrap
+        (``turns_v``: revolute and continuous joints) moved into [-pi, pi); prismatic ones as given."""
+        return np.where(self.turns_v, (d + np.pi) % (2 * np.pi) - np.pi, d)
+
     def angles(self, q: np.ndarray) -> np.ndarray:
         """(F, nv) per-dof coordinates: q itself for 1-dof joints; continuous joints' (cos, sin) as an
         unwrapped angle. Other multi-dof joints (spherical, free) give the difference to the rest."""

@@ -259,7 +259,7 @@ def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], track
     a_best = robot.angles(best["q"])
     for q in others:
         a = robot.angles(q)
-        d = np.where(robot.turns_v, (a - a_best + np.pi) % (2 * np.pi) - np.pi, a - a_best)
+        d = robot.wrap_angles(a - a_best)
         for k in range(1, robot.nv):
             if np.abs(d[:, k:]).max() < 0.05:
                 break  # the same tail from here on: nothing new for this or larger k

@@ -42,7 +42,7 @@ def _prefer_rest(robot: RobotKinematics, cands: list[dict], key: str, blind: np.
     def distance(c):
         seen = ~(blind | c["gauge"])
         d = robot.angles(c["q"]) - robot.angles(robot.q_rest)  # per degree of freedom (nv)
-        d = np.where(robot.turns_v, (d + np.pi) % (2 * np.pi) - np.pi, d)[:, seen]
+        d = robot.wrap_angles(d)[:, seen]
         return float(np.abs(d).mean()) if d.size else 0.0
 
     tied.sort(key=distance)

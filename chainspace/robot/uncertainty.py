@@ -207,7 +207,7 @@ def ambiguous_joints(robot: RobotKinematics, angles: np.ndarray, alternatives: l
         d = alt["angles"] - angles
         if relative is not None:
             d = d - np.where(relative, d[:1], 0.0)
-        d = np.where(robot.turns_v, (d + np.pi) % (2 * np.pi) - np.pi, d)
+        d = robot.wrap_angles(d)
         rms = np.sqrt(np.mean(d ** 2, axis=0)) * np.where(robot.prismatic_v, 1000.0, np.degrees(1.0))
         worst = np.maximum(worst, rms)
     return (worst > AMBIGUOUS_DEG) & judged, worst
@@ -503,8 +503,7 @@ def _other_branch(robot: RobotKinematics, winner: dict, tracks: np.ndarray, w: n
                                       np.zeros(view.n_params, bool), 30, 1e-8, delta)
     qs = qs.reshape(K, F, -1)
     cost = (w[idx] * rn ** 2).sum(1).reshape(K, F) / max(sigma, 1e-12) ** 2
-    diff = np.abs(robot.angles(qs.reshape(K * F, -1)).reshape(K, F, -1) - robot.angles(q)[None])
-    diff = np.where(robot.turns_v, (diff + np.pi) % (2 * np.pi) - np.pi, diff)
+    diff = robot.wrap_angles(robot.angles(qs.reshape(K * F, -1)).reshape(K, F, -1) - robot.angles(q)[None])
     near = np.abs(diff).max(-1) < np.radians(DISTINCT_DEG)  # (K, F)
     if near.all():
         return []
