@@ -139,7 +139,13 @@ def summarise(trials: list[dict]) -> dict:
         band=np.array([t["model_shares"] for t in checked]),
         chi2=np.array([t["chi2_dof"] for t in checked]),
         flipped=np.array([bool(p["off"]) for t, p in zip(trials, per_trial) if "model_rank" in t]))
+    kinds = [t.get("camera", "static").split()[0] for t in trials]  # phone, industrial (distorting) or static
+    def share(within, kind):
+        return float(np.nanmean(np.concatenate([a for a, b in zip(within, kinds) if b == kind])))
+
+    by_camera = {k: dict(n=kinds.count(k), within1=share(i1s, k), within2=share(i2s, k)) for k in sorted(set(kinds))}
     return dict(rows=rows, within1=float(np.nanmean(i1)), within2=float(np.nanmean(i2)), per_trial=per_trial,
+                by_camera=by_camera,
                 trial_within1=w1, off=off, off_flagged=off_flagged, model=model,
                 ambiguous_trials=sum(bool(p["ambiguous"]) for p in per_trial),
                 seconds=float(sum(t["seconds"] for t in trials)))
@@ -168,6 +174,10 @@ def table(res: dict, robot: str, n_frames: int, noise_px: float, camera: str = "
             f"Trials with a joint off by more than {OFF_DEG:g} deg RMS and {OFF_STD:g} of its reported std (a branch "
             f"flip): {res['off']}, of which flagged ambiguous on every such joint: {res['off_flagged']}, silent: "
             f"{res['off'] - res['off_flagged']}. Trials with any joint flagged ambiguous: {res['ambiguous_trials']}.",
+            *([] if len(res["by_camera"]) < 2 else [
+                "By camera: " + "; ".join(f"{k} ({c['n']} trials) {100 * c['within1']:.1f} % within 1 std, "
+                                          f"{100 * c['within2']:.1f} % within 2" for k, c in res["by_camera"].items())
+                + " (industrial: a lens with barrel distortion, given to the fit)."]),
             *_model_lines(res["model"]),
             "", "Per trial (seed: % within 1 std; joints off; joints flagged ambiguous):",
             "; ".join(f"{p['seed']}: {100 * p['within1']:.0f}" + (f" (off: {', '.join(p['off'])})" if p['off'] else "")
