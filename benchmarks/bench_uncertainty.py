@@ -11,10 +11,10 @@ default its realistic static pinhole camera, a phone or an industrial camera wit
 1.5-4 reaches away: footage more realistic than the fit's model; ``--camera static``: a static
 weak-perspective camera, the weak fit's own model), reconstructs, fits the joint angles (defaults:
 acceleration prior on; a pinhole trial's fit is given the camera's intrinsics and distortion, as a
-calibrated user would) and compares the fitted angles with the truth frame by frame: the share of true values within one
-reported standard deviation (``fit.q_std``; target 68 % +- 10 %) and within two (95 % for a
-Gaussian), per joint and pooled, and per trial. A joint seen only relative to frame 0 is compared as
-its change since frame 0.
+calibrated user would) and compares the fitted angles with the truth frame by frame: the share of
+true values within one reported standard deviation (``fit.q_std``; target 68 % +- 10 %) and within
+two (95 % for a Gaussian), per joint and pooled, per trial and per camera kind. A joint seen only
+relative to frame 0 is compared as its change since frame 0.
 
 Every trial counts in every share, whatever it reports: a fit on a wrong branch (a wrist turned half a
 turn: its errors lie far outside its deviations) and joints flagged ambiguous included. Such trials
@@ -140,6 +140,7 @@ def summarise(trials: list[dict]) -> dict:
         chi2=np.array([t["chi2_dof"] for t in checked]),
         flipped=np.array([bool(p["off"]) for t, p in zip(trials, per_trial) if "model_rank" in t]))
     kinds = [t.get("camera", "static").split()[0] for t in trials]  # phone, industrial (distorting) or static
+
     def share(within, kind):
         return float(np.nanmean(np.concatenate([a for a, b in zip(within, kinds) if b == kind])))
 
@@ -230,6 +231,8 @@ def main(argv=None) -> int:
         p.error("--trials >= 1, --frames >= 3 and --noise > 0 are needed")
     if a.from_json:
         trials = [t for f in a.from_json for t in json.loads(Path(f).read_text())]
+        if any(_setting(t) != _setting(trials[0]) for t in trials):
+            p.error("the files hold trials of different robots, frame counts, noises or cameras: one table each")
         a.robot, a.frames, a.noise, a.camera = _setting(trials[0])
     else:
         from chainspace.bench.robots import ROBOTS, robot_chain
