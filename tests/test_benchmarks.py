@@ -131,6 +131,10 @@ def test_uncertainty_benchmark_keeps_weak_and_pinhole_trials_apart(tmp_path, cap
         main(argv)
     assert "another robot, frame count, noise or camera" in capsys.readouterr().err
     assert main(["--from-json", str(saved)]) == 0 and "weak-perspective camera" in capsys.readouterr().out
+    other = tmp_path / "v.json"  # the same trial relabelled pinhole: not tabled under the first file's title
+    other.write_text(saved.read_text().replace('"static"]', '"pinhole"]'))
+    with pytest.raises(SystemExit):
+        main(["--from-json", str(saved), str(other)])
 
 
 def test_uncertainty_model_check_ranks_a_trial_among_draws_from_its_covariance():
