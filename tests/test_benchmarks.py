@@ -33,6 +33,8 @@ SMALLEST = {
     "bench_video.py": (["--quick", "--frames", "4", "--no-fit"], "| milling_arm | 640x480 | 4 |"),
     # --quick times 1,000 and 10,000 frames, each for a second per method and thread count (23 s)
     "bench_speed.py": (["--sizes", "500"], "| 500 |"),
+    "bench_uncertainty.py": (["--robot", "double_pendulum", "--trials", "1", "--frames", "6"],
+                             "a static pinhole camera"),
 }
 # bench_batch.py starts two Dask clusters and a fresh process (tens of seconds even --quick): its pieces
 # are run here instead (test_batch_benchmark_recordings)
@@ -118,6 +120,21 @@ def test_robustness_targets_judge_joints_and_failed_runs():
     assert not res["milling arm: no cliff in the random sweep (worst joint RMS)"]  # the flipped wrist
     assert not res["milling arm: no silent flip (a joint > 90 deg off, reported observable)"]
     assert find_cliffs([0, 1, 2], [5.0, 6.0, np.inf])["cliff"][-1]  # a failed run is a cliff
+
+
+def test_uncertainty_benchmark_keeps_weak_and_pinhole_trials_apart(tmp_path, capsys):
+    main, saved = _main("bench_uncertainty.py"), tmp_path / "u.json"
+    argv = ["--robot", "double_pendulum", "--trials", "1", "--frames", "6", "--json", str(saved)]
+    assert main(argv + ["--camera", "static"]) == 0
+    assert "weak-perspective camera" in capsys.readouterr().out
+    with pytest.raises(SystemExit):  # the file holds a weak-perspective trial: no pinhole ones added to it
+        main(argv)
+    assert "another robot, frame count, noise or camera" in capsys.readouterr().err
+    assert main(["--from-json", str(saved)]) == 0 and "weak-perspective camera" in capsys.readouterr().out
+    other = tmp_path / "v.json"  # the same trial relabelled pinhole: not tabled under the first file's title
+    other.write_text(saved.read_text().replace('"static"]', '"pinhole"]'))
+    with pytest.raises(SystemExit):
+        main(["--from-json", str(saved), str(other)])
 
 
 def test_uncertainty_model_check_ranks_a_trial_among_draws_from_its_covariance():
