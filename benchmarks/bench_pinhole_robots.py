@@ -61,7 +61,7 @@ def film(chain, robot, cond, n_frames, seed):
 
 
 def joint_report(fit, tr):
-    """Per degree of freedom (validate's rows): name, status, judged, RMS error (deg or mm), the RMS over
+    """Per degree of freedom (validate's rows): name, status, judged, RMS and largest error (deg or mm), the RMS over
     frames of its reported std and the share of its frames within one std (None without q_std), and
     for a flagged joint whether a poor fit or a tie flagged it."""
     from chainspace.robot.validation import validate
@@ -72,7 +72,7 @@ def joint_report(fit, tr):
         scale = np.degrees(1.0) if j["unit"] == "deg" else 1000.0
         s = None if std is None or not np.isfinite(std[:, k]).any() else float(scale * np.sqrt(np.nanmean(std[:, k] ** 2)))
         out.append(dict(name=j["name"], status=j["status"], judged=bool(j["judged"]), unit=j["unit"], rms=j["rms"],
-                        std_rms=s, within=j.get("within_1_std_pct"),
+                        max=j["max"], std_rms=s, within=j.get("within_1_std_pct"),
                         reason=("poor fit" if j.get("reason", "").startswith("poor fit") else "tie")
                         if j["status"] == "ambiguous" else None))
     return out
@@ -115,7 +115,7 @@ def describe(run):
     """One progress line per run (the table's cells and each joint's error beside its reported std)."""
     if run["error"]:
         return f"{run['robot']} {run['cond']} seed {run['seed']}: FAILED\n{run['traceback']}"
-    js = ", ".join(f"{j['name']} {j['rms']:.2f}" + (f" (std {j['std_rms']:.2f}, {j['within']:.0f} % within)"
+    js = ", ".join(f"{j['name']} {j['rms']:.2f} (max {j.get('max', float('nan')):.1f})" + (f" (std {j['std_rms']:.2f}, {j['within']:.0f} % within)"
                                                       if j["std_rms"] is not None and j["within"] is not None else "")
                    + ("" if j["judged"] else f" [{j['status']}{', ' + j['reason'] if j['reason'] else ''}]")
                    for j in run["joints"] if j["rms"] is not None)
