@@ -155,10 +155,12 @@ def _cell(v, fmt):
 
 
 def table(runs):
-    """The runs as one markdown table, one row per robot, condition and frame count (cells: mean / max
-    over runs when there are several)."""
+    """The runs as one markdown table, one row per robot, condition and frame count (most frames first,
+    then the robots' and conditions' order; cells: mean / max over runs when there are several)."""
     rows = {}
-    for r in runs:
+    order = {n: k for k, n in enumerate(ROBOT_NAMES)}
+    for r in sorted(runs, key=lambda r: (-r["frames"], order.get(r["robot"], len(order)),
+                                         CONDITIONS.index(r["cond"]) if r["cond"] in CONDITIONS else -1)):
         rows.setdefault((r["robot"], r["cond"], r["frames"]), []).append(r)
     out = ["1 px noise, static pinhole camera. Cells: mean / max over runs (a failed run counts as infinite).", "",
            "| robot | condition | frames | runs | failed | worst judged joint RMS (deg) | judged joints | flagged (not judged: RMS deg) "
