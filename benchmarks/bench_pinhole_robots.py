@@ -2,7 +2,9 @@
 
     python benchmarks/bench_pinhole_robots.py                       # 4 robots x 4 conditions, 60 frames, 1 seed
     python benchmarks/bench_pinhole_robots.py --robots "milling arm" --frames 30 --seeds 2
-    python benchmarks/bench_pinhole_robots.py --conditions K focal
+    python benchmarks/bench_pinhole_robots.py --conditions K focal --json p.json   # each run saved as it comes;
+                                                                    # run again to resume
+    python benchmarks/bench_pinhole_robots.py --from-json p.json    # the table of the saved runs
     python benchmarks/bench_pinhole_robots.py --quick                # milling arm, K, 20 frames
 
 Conditions (1 px noise, 1920x1080 images, one static pinhole camera 1.5-3 reaches from the centre of the
@@ -15,19 +17,23 @@ then fitted with fit_joint_angles):
   point over the sequence is 0.3 m from it (points may leave the image; they are kept).
 * ``distortion``: intrinsics known with lens distortion (k1, k2, p1, p2, k3) = (-0.25, 0.08, 0.001, -0.001, 0).
 
-Per row: runs, failed runs (an exception: counted in the error columns as infinite, and in its own), the worst observable joint's RMS
-(deg, mean and max over runs), the 3D error (% of reach), focal error (%), the share of the judged
-joints' frames whose error lies within one reported standard deviation (``fit.q_std``; honest: about
-68 %), seconds and frames/s. The progress lines on stderr give each joint's RMS error beside the RMS
-of its reported std.
+Per row: runs, failed runs (an exception: counted in the error columns as infinite, and in its own), the
+worst judged joint's RMS (deg, mean and max over runs; the joint named), the judged joints (observable or
+seen relative to frame 0, and not flagged) and the flagged ones (the fit reports them ambiguous: a tie or
+a poor fit; listed with their error, not judged), the 3D error (% of reach), focal error (%, with the
+fit's reported std), the share of the judged joints' frames whose error lies within one reported
+standard deviation (``fit.q_std``; honest: about 68 %), seconds and frames/s. The progress lines on
+stderr give each joint's RMS error beside the RMS of its reported std.
 Targets: K <= 1 deg; focal unknown <= 2 deg and focal within 2 %; close range <= 2 deg.
 """
 
 import argparse
+import json
 import sys
 import time
 import traceback
 import warnings
+from pathlib import Path
 
 import numpy as np
 
@@ -54,90 +60,138 @@ def film(chain, robot, cond, n_frames, seed):
     return synthesize(chain, distance_reaches=d, **kw)
 
 
-def per_joint(fit, tr):
-    """(one line: each judged joint's RMS error in degrees, with the RMS over frames of its reported
-    std and the share of frames within one std when the fit gives q_std; the share of all judged
-    joints' frames within one reported std, %, NaN without q_std)."""
+def joint_report(fit, tr):
+    """Per degree of freedom (validate's rows): name, status, judged, RMS and largest error (deg or mm), the RMS over
+    frames of its reported std and the share of its frames within one std (None without q_std), and
+    for a flagged joint whether a poor fit or a tie flagged it."""
     from chainspace.robot.validation import validate
 
-    out, within = [], []
-    std = None if fit.q_std is None else np.degrees(np.asarray(fit.q_std, float))
+    std = None if fit.q_std is None else np.asarray(fit.q_std, float)
+    out = []
     for k, j in enumerate(validate(fit, tr.q).joints):
-        if j["rms"] is None:
-            continue
-        s = f"{j['name']} {j['rms']:.2f}"
-        if j.get("within_1_std_pct") is not None and j["judged"]:
-            s += f" (std {np.sqrt(np.nanmean(std[:, k] ** 2)):.2f}, {j['within_1_std_pct']:.0f} % within)"
-            within.append(j["within_1_std_pct"])
-        out.append(s)
-    return ", ".join(out), float(np.mean(within)) if within else np.nan
+        scale = np.degrees(1.0) if j["unit"] == "deg" else 1000.0
+        s = None if std is None or not np.isfinite(std[:, k]).any() else float(scale * np.sqrt(np.nanmean(std[:, k] ** 2)))
+        out.append(dict(name=j["name"], status=j["status"], judged=bool(j["judged"]), unit=j["unit"], rms=j["rms"],
+                        max=j["max"], std_rms=s, within=j.get("within_1_std_pct"),
+                        reason=("poor fit" if j.get("reason", "").startswith("poor fit") else "tie")
+                        if j["status"] == "ambiguous" else None))
+    return out
 
 
-def run(robots, conds, n_frames, seeds, progress):
+def one_run(name, chain, robot, cond, n_frames, seed):
+    """One film-reconstruct-fit run as a JSON-able dict (``error`` holds the exception of a failed run)."""
     from chainspace.reconstruction.pipeline import reconstruct
     from chainspace.robot.fit import fit_joint_angles
+
+    run = dict(robot=name, cond=cond, seed=seed, frames=n_frames, error=None)
+    try:
+        tr = film(chain, robot, cond, n_frames, seed)
+        t0 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            rec = reconstruct(tr.tracks, chain, seed=seed)
+            kw = dict(image_size=tr.image_size) if cond == "focal" else dict(intrinsics=tr.intrinsics)
+            fit = fit_joint_angles(rec, tracks=tr.tracks, **kw)
+        run["secs"] = time.perf_counter() - t0
+        worst, e3 = trial_errors(fit, tr)
+        joints = joint_report(fit, tr)
+        deg = [j for j in joints if j["judged"] and j["unit"] == "deg" and j["rms"] is not None]
+        within = [j["within"] for j in joints if j["judged"] and j["within"] is not None]
+        f_true = float(tr.intrinsics.K[0, 0])
+        run.update(worst_deg=worst, worst_joint=max(deg, key=lambda j: j["rms"])["name"] if deg else None,
+                   e3_pct=100 * e3 / robot.reach(), joints=joints, message=fit.message,
+                   within_pct=float(np.mean(within)) if within else None,  # same frames per joint: the pooled share
+                   focal_err_pct=None if cond != "focal" or fit.focal_px is None
+                   else 100 * abs(fit.focal_px - f_true) / f_true,
+                   focal_std_pct=None if cond != "focal" or fit.focal_std_px is None
+                   else 100 * fit.focal_std_px / f_true)
+    except Exception as ex:
+        run["error"] = f"{type(ex).__name__}: {ex}"
+        run["traceback"] = traceback.format_exc()
+    return run
+
+
+def describe(run):
+    """One progress line per run (the table's cells and each joint's error beside its reported std)."""
+    if run["error"]:
+        return f"{run['robot']} {run['cond']} seed {run['seed']}: FAILED\n{run['traceback']}"
+    js = ", ".join(f"{j['name']} {j['rms']:.2f} (max {j.get('max', float('nan')):.1f})" + (f" (std {j['std_rms']:.2f}, {j['within']:.0f} % within)"
+                                                      if j["std_rms"] is not None and j["within"] is not None else "")
+                   + ("" if j["judged"] else f" [{j['status']}{', ' + j['reason'] if j['reason'] else ''}]")
+                   for j in run["joints"] if j["rms"] is not None)
+    return (f"{run['robot']} {run['cond']} seed {run['seed']}: worst joint {run['worst_deg']:.3f} deg "
+            f"({run['worst_joint']}), 3D {run['e3_pct']:.2f} %, {run['secs']:.0f} s; {run['message'][-160:]}\n  " + js)
+
+
+def run_all(robots, conds, n_frames, seeds, progress, runs=(), on_run=None):
+    """Every (robot, condition, seed) not already in ``runs`` (a resumed file's, same frame count); each
+    new run is handed to ``on_run(all runs so far)`` as it ends. Returns every run."""
     from chainspace.robot.kinematics import RobotKinematics
 
-    rows = []
+    runs = list(runs)
+    done = {(r["robot"], r["cond"], r["seed"], r["frames"]) for r in runs}
     for name in robots:
+        todo = [(c, s) for c in conds for s in range(seeds) if (name, c, s, n_frames) not in done]
+        if not todo:
+            continue
         try:
             chain = robot_chain(name)
         except Exception as e:  # e.g. example-robot-data without this robot
-            rows.append(dict(robot=name, cond="-", note=f"skipped: {type(e).__name__}: {e}"))
+            runs.append(dict(robot=name, cond="-", seed=0, frames=n_frames, error=f"skipped: {type(e).__name__}: {e}"))
             continue
         robot = RobotKinematics(chain.metadata["urdf_path"], chain)
-        for cond in conds:
-            errs, e3, ferr, within, secs, frames, failed = [], [], [], [], 0.0, 0, []
-            for seed in range(seeds):
-                try:
-                    tr = film(chain, robot, cond, n_frames, seed)
-                    t0 = time.perf_counter()
-                    with warnings.catch_warnings():
-                        warnings.simplefilter("ignore")
-                        rec = reconstruct(tr.tracks, chain, seed=seed)
-                        kw = dict(image_size=tr.image_size) if cond == "focal" else dict(intrinsics=tr.intrinsics)
-                        fit = fit_joint_angles(rec, tracks=tr.tracks, **kw)
-                    secs += time.perf_counter() - t0
-                    frames += n_frames
-                    j, e = trial_errors(fit, tr)
-                    line, cov = per_joint(fit, tr)
-                    within.append(cov)
-                    errs.append(j)
-                    e3.append(100 * e / robot.reach())
-                    if cond == "focal":
-                        ferr.append(100 * abs(fit.focal_px - tr.intrinsics.K[0, 0]) / tr.intrinsics.K[0, 0]
-                                    if fit.focal_px is not None else np.nan)
-                    progress(f"{name} {cond} seed {seed}: worst joint {j:.3f} deg, 3D {e3[-1]:.2f} %, "
-                             f"{time.perf_counter() - t0:.0f} s; {fit.message[-160:]}\n  " + line)
-                except Exception as ex:
-                    failed.append(f"seed {seed}: {type(ex).__name__}: {ex}")
-                    errs.append(np.inf)  # every run counts in every mean and maximum
-                    e3.append(np.inf)
-                    progress(traceback.format_exc())
-            rows.append(dict(robot=name, cond=cond, runs=seeds, failed=failed, errs=errs, e3=e3, ferr=ferr,
-                             within=within, secs=secs, fps=frames / secs if secs else np.nan))
-    return rows
+        for cond, seed in todo:
+            runs.append(one_run(name, chain, robot, cond, n_frames, seed))
+            progress(describe(runs[-1]))
+            if on_run:
+                on_run(runs)
+    return runs
 
 
-def table(rows, n_frames):
-    def mm(v, fmt="{:.2f}"):
-        v = [x for x in v]
-        if not v:
-            return "-"
-        if any(np.isnan(x) for x in v):
-            return "nan in " + str(sum(np.isnan(x) for x in v))
-        return (fmt + " / " + fmt).format(float(np.mean(v)), float(np.max(v)))
+def _cell(v, fmt):
+    if not v:
+        return "-"
+    return (fmt + " / " + fmt).format(float(np.mean(v)), float(np.max(v))) if len(v) > 1 else fmt.format(v[0])
 
-    out = [f"{n_frames} frames per run, 1 px noise, static pinhole camera. Cells: mean / max over runs.", "",
-           "| robot | condition | runs | failed | worst joint RMS (deg) | 3D error (% reach) | focal error (%) "
-           "| within 1 std (%) | seconds | frames/s |", "|---|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        if "note" in r:
-            out.append(f"| {r['robot']} | - | 0 | - | {r['note']} | | | | | |")
-            continue
-        out.append(f"| {r['robot']} | {r['cond']} | {r['runs']} | {len(r['failed'])} | {mm(r['errs'], '{:.3f}')} | "
-                   f"{mm(r['e3'])} | {mm(r['ferr'], '{:.3f}')} | {mm(r['within'], '{:.0f}')} | {r['secs']:.0f} | {r['fps']:.2f} |")
-    fails = [f"- {r['robot']} {r['cond']} {f}" for r in rows if "failed" in r for f in r["failed"]]
+
+def table(runs):
+    """The runs as one markdown table, one row per robot, condition and frame count (most frames first,
+    then the robots' and conditions' order; cells: mean / max over runs when there are several)."""
+    rows = {}
+    order = {n: k for k, n in enumerate(ROBOT_NAMES)}
+    for r in sorted(runs, key=lambda r: (-r["frames"], order.get(r["robot"], len(order)),
+                                         CONDITIONS.index(r["cond"]) if r["cond"] in CONDITIONS else -1)):
+        rows.setdefault((r["robot"], r["cond"], r["frames"]), []).append(r)
+    out = ["1 px noise, static pinhole camera. Cells: mean / max over runs (a failed run counts as infinite).", "",
+           "| robot | condition | frames | runs | failed | worst judged joint RMS (deg) | judged joints | flagged (not judged: RMS deg) "
+           "| 3D error (% reach) | focal error (%) | within 1 std (%) | seconds | frames/s |",
+           "|---|---|---:|---:|---:|---:|---|---|---:|---:|---:|---:|---:|"]
+    for (robot, cond, frames), rs in rows.items():
+        ok = [r for r in rs if not r["error"]]
+        fail = len(rs) - len(ok)
+        worst = [r["worst_deg"] for r in ok] + [np.inf] * fail
+        e3 = [r["e3_pct"] for r in ok] + [np.inf] * fail
+        wname = max(ok, key=lambda r: r["worst_deg"])["worst_joint"] if ok else None
+        judged = sorted({j["name"] for r in ok for j in r["joints"] if j["judged"]},
+                        key=lambda n: [j["name"] for j in ok[0]["joints"]].index(n))
+        flagged = {}
+        for r in ok:
+            for j in r["joints"]:
+                if j["status"] == "ambiguous":
+                    flagged.setdefault(j["name"], []).append((j["rms"], j["reason"]))
+        fl = ", ".join(f"{n} {max(x for x, _ in v):.2f} ({'/'.join(sorted({w for _, w in v}))})"
+                       for n, v in flagged.items()) or "-"
+        focal = [r["focal_err_pct"] for r in ok if r.get("focal_err_pct") is not None]
+        fstd = [r["focal_std_pct"] for r in ok if r.get("focal_std_pct") is not None]
+        within = [r["within_pct"] for r in ok if r.get("within_pct") is not None]
+        secs = sum(r["secs"] for r in ok)
+        out.append(f"| {robot} | {cond} | {frames} | {len(rs)} | {fail} | "
+                   f"{_cell(worst, '{:.3f}')}{f' ({wname})' if wname else ''} | "
+                   f"{len(judged)} of {len(ok[0]['joints']) if ok else '-'}: {', '.join(judged) or '-'} | "
+                   f"{fl} | {_cell(e3, '{:.2f}')} | {_cell(focal, '{:.3f}')}"
+                   f"{f' (std {np.mean(fstd):.2f})' if fstd else ''} | {_cell(within, '{:.0f}')} | {secs:.0f} | "
+                   f"{len(ok) * frames / secs if secs else float('nan'):.2f} |")
+    fails = [f"- {r['robot']} {r['cond']} seed {r['seed']}: {r['error']}" for r in runs if r["error"]]
     return "\n".join(out + ([""] + ["Failed runs:"] + fails if fails else []))
 
 
@@ -148,11 +202,29 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=60)
     p.add_argument("--seeds", type=int, default=1)
     p.add_argument("--quick", action="store_true", help="milling arm, intrinsics known, 20 frames")
+    p.add_argument("--json", default=None, help="save every run here as it comes; runs already in it are not run "
+                                                 "again (resume); the table shows every run in the file")
+    p.add_argument("--from-json", nargs="+", default=None, help="print the table of runs saved with --json")
     a = p.parse_args(argv)
     if a.quick:
         a.robots, a.conditions, a.frames = ["milling arm"], ["K"], 20
-    rows = run(a.robots, a.conditions, a.frames, a.seeds, lambda m: print(m, file=sys.stderr, flush=True))
-    print(table(rows, a.frames))
+    if a.from_json:
+        print(table([r for f in a.from_json for r in json.loads(Path(f).read_text())]))
+        return 0
+    path = Path(a.json) if a.json else None
+    runs = json.loads(path.read_text()) if path and path.exists() else []
+    if not isinstance(runs, list) or any(not isinstance(r, dict) or "cond" not in r for r in runs):
+        p.error(f"{path} is no file of this benchmark")
+
+    def save(runs):
+        from chainspace.io.results import atomic_write
+
+        with atomic_write(path, overwrite=True) as fh:  # our own file (checked above), rewritten with each run
+            fh.write(json.dumps(runs, indent=1, default=float))
+
+    runs = run_all(a.robots, a.conditions, a.frames, a.seeds, lambda m: print(m, file=sys.stderr, flush=True),
+                   runs=runs, on_run=save if path else None)
+    print(table(runs))
     return 0
 
 

@@ -4,6 +4,7 @@ count every run (issue 21: a benchmark that cannot hide a failure)."""
 from __future__ import annotations
 
 import importlib.util
+import json
 from pathlib import Path
 
 import numpy as np
@@ -152,3 +153,33 @@ def test_uncertainty_model_check_ranks_a_trial_among_draws_from_its_covariance()
     assert check(np.zeros(n), std, cov, seed=1)["model_rank"] > 0.9  # every error inside: above the draws
     flipped = check(10 * std * (-1) ** np.arange(n), std, cov, seed=1)  # far off, across the shared direction
     assert flipped["model_rank"] < 0.05 and flipped["chi2_dof"] > 10  # all outside: below (nearly) every draw
+
+
+def test_pinhole_robots_json_resumes_and_its_table_counts_judged_and_flagged_joints(tmp_path, capsys, monkeypatch):
+    """--json saves each run as it comes, a second call runs nothing already saved, --from-json prints the
+    same table; the table counts the judged joints and lists a flagged one with its error apart."""
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "1")
+    main = _main("bench_pinhole_robots.py")
+    path = tmp_path / "runs.json"
+    argv = ["--robots", "double_pendulum", "--conditions", "K", "--frames", "8", "--json", str(path)]
+    assert main(argv) == 0
+    first = capsys.readouterr()
+    runs = json.loads(path.read_text())
+    assert [(r["robot"], r["cond"], r["seed"], r["frames"]) for r in runs] == [("double_pendulum", "K", 0, 8)]
+    assert main(argv) == 0  # resumed: nothing left to run
+    again = capsys.readouterr()
+    assert "seed 0" in first.err and "seed 0" not in again.err
+    assert json.loads(path.read_text()) == runs and again.out == first.out
+    assert main(["--from-json", str(path)]) == 0
+    assert capsys.readouterr().out == first.out
+
+    # a flagged joint: listed apart with its error, not judged, not the worst; a failed run counts as infinite
+    flagged = dict(runs[0], joints=[dict(j) for j in runs[0]["joints"]])
+    flagged["joints"][0].update(status="ambiguous", judged=False, reason="tie", rms=37.5)
+    failed = dict(robot="double_pendulum", cond="K", seed=1, frames=8, error="ValueError: x")
+    out = _main("bench_pinhole_robots.py").__globals__["table"]([flagged, failed])
+    row = next(l for l in out.splitlines() if l.startswith("| double_pendulum | K | 8 |"))
+    cells = [c.strip() for c in row.split("|")[1:-1]]
+    assert cells[3:5] == ["2", "1"] and cells[5].startswith("inf / inf")
+    assert cells[6].startswith("0 of 2") and cells[7] == f"{flagged['joints'][0]['name']} 37.50 (tie)"
+    assert "Failed runs:" in out and "seed 1: ValueError: x" in out
