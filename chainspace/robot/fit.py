@@ -630,7 +630,7 @@ def fit_joint_angles(
         message=msg, n_iter=int(n_iter), relative=relative,
         tracks=tracks, confidence=confidence, positions_base=pos_base, input_poses=poses, timings=timings,
         q_std=trust.get("q_std"), noise_px=trust.get("noise_px"), alternatives=trust.get("alternatives", []),
-        ambiguous=trust.get("ambiguous", np.zeros(robot.nv, bool)),
+        ambiguous=trust.get("ambiguous", np.zeros(robot.nv, bool)), joint_reasons=trust.get("reasons", []),
     )
 
 
@@ -715,7 +715,8 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     residual_3d = _rms_per_frame(np.linalg.norm(positions - np.nan_to_num(poses), axis=-1), w3)
     # the weak fit's ambiguities are perspective's to settle: its own (trust) notes replace them
     msg = "; ".join(m for m in weak_msg.split("; ") if not m.startswith(
-        ("ambiguous: ", "the reported one is a guess (fit.alternatives)", "the tracked points hang")))
+        ("ambiguous: ", "the reported one is a guess (fit.alternatives)", "the tracked points hang", "poor fit: ",
+         "uncertain: ")))
     tie_note = "; the motion and its mirror image fit the data equally well (weak perspective)"
     if tie_note in msg:
         cut = msg.index(tie_note)
@@ -742,5 +743,5 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         positions_base=pos_base, input_poses=poses, timings=timings, intrinsics=cam,
         camera_pose=(view.R[0].copy(), view.t[0].copy()), focal_px=focal, focal_std_px=focal_std,
         q_std=trust["q_std"], noise_px=trust["noise_px"], alternatives=trust["alternatives"],
-        ambiguous=trust["ambiguous"],
+        ambiguous=trust["ambiguous"], joint_reasons=trust["reasons"],
     )
