@@ -83,6 +83,8 @@ def test_each_flagged_joint_gets_its_own_reason(fitted):
     assert [rows[n]["status"] for n in ("joint_a1", "joint_a3", "joint_a4")] == ["ambiguous", "observable", "ambiguous"]
     assert [rows[n].get("reason") for n in fit.joint_names] == [r if a else None for r, a in zip(reasons, amb)]
     assert not rows["joint_a1"]["judged"] and rows["joint_a3"]["judged"]
+    table, summary = validate(flagged, t.q).table(), flagged.summary().splitlines()
+    assert all(r in table for r in reasons) and summary[5].startswith("joint_a6: ambiguous") and reasons[5] in summary[5]
     # a fit saved before the reasons were kept per joint: its message, for each flagged joint
     old = type(fit)(**{**flagged.__dict__, "joint_reasons": []})
     assert {j.get("reason") for j in validate(old, t.q).joints if j["status"] == "ambiguous"} == {old.message}

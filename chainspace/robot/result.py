@@ -152,9 +152,10 @@ class JointFit:
                 for a, o, r in zip(amb, obs, rel)]
 
     def summary(self) -> str:
-        """Plain text, one line per joint: its status and median standard deviation (degrees, mm for
-        prismatic joints), then the measured pixel noise, the alternatives and the fit's message."""
+        """Plain text, one line per joint: its status, median standard deviation (degrees, mm for
+        prismatic joints) and why it is flagged, then the measured pixel noise, the alternatives and the fit's message."""
         lines = []
+        reasons = joint_reasons(self)
         std = None if self.q_std is None else np.asarray(self.q_std, float)
         prismatic = (self.kinematics().prismatic_v if std is not None and self.urdf_path
                      else np.zeros(len(self.joint_names), bool))
@@ -163,7 +164,7 @@ class JointFit:
             if std is not None and np.isfinite(std[:, k]).any():
                 unit, scale = ("mm", 1000.0) if prismatic[k] else ("deg", np.degrees(1.0))
                 sd = f", std {scale * float(np.nanmedian(std[:, k])):.2f} {unit} (median over frames)"
-            lines.append(f"{name}: {status}{sd}")
+            lines.append(f"{name}: {status}{sd}" + (f" ({reasons[k]})" if reasons[k] and reasons[k] != self.message else ""))
         if self.noise_px is not None and np.isfinite(self.noise_px):
             lines.append(f"measured pixel noise: {self.noise_px:.2f} px")
         if self.alternatives:
