@@ -105,7 +105,9 @@ camera (which a pinhole projects as it projects their mirror through the camera 
 
 Perspective settles the depth mirror: a motion and its mirror image no longer project alike, so
 the perspective fit starts from the weak fit's winner *and* its distinct alternatives (mirror images,
-the reflection about the symmetry plane; at most three), and the lowest perspective objective wins.
+the reflection about the symmetry plane): each through the camera stage, the winner and the two
+others that fit best there refined in full (``perspective.MAX_STARTS``), and the lowest perspective
+objective wins.
 The camera-side rule (``view_from``) and the rest-pose rule then decide nothing; ``message`` says
 whether the choice was clear (the objectives more than 25 noise variances apart) or a guess. The
 joints seen only relative to frame 0, and the face-on planes of a wrist, are as above (a turn about
@@ -683,7 +685,6 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     for st in starts:  # the weak fit's winner and its distinct alternatives (mirror images, flips)
         if not any(_same_motion(robot, st["q"], d["q"]) for d in distinct):
             distinct.append(st)
-    distinct = distinct[:3]
     t1 = time.perf_counter()
     best = refine_perspective(robot, distinct, tracks_u, w2, None if cam is None else cam.K, image_size, accel_std,
                               fps, speed_decay_s, _unseen(robot, w2), max_iter, tol, weak_sse,

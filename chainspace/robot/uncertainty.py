@@ -339,8 +339,8 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     if uncertain.any():
         names = [f"{robot.joint_names[k]} ({spread[k]:.1f} {unit[k]})" for k in np.flatnonzero(uncertain)]
         notes.append(f"uncertain: {', '.join(names)}: the reported standard deviation (RMS over the frames, "
-                     f"fit.q_std) is more than {AMBIGUOUS_DEG:g} degrees: the tracks pin these joints down no "
-                     "better; reported, not trusted")
+                     f"fit.q_std) is more than {AMBIGUOUS_DEG:g} degrees ({AMBIGUOUS_DEG:g} mm for a sliding joint): the "
+                     "tracks pin these joints down no better; reported, not trusted")
     # one reason per joint ("" where none), each naming only what concerns that joint
     reasons = ["; ".join(why for flag, why in (
         (poor[k], f"poor fit: the tracks of {', '.join(points)} are fitted {ratio.max() if poor.any() else 0:.1f} "
@@ -348,7 +348,7 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
         (ambiguous[k], f"tie: {len(alts)} other motion(s) fit the tracks as well and differ here by up to "
                        f"{worst[k]:.0f} {unit[k]} RMS (fit.alternatives)"),
         (uncertain[k], f"uncertain: standard deviation {spread[k]:.1f} {unit[k]} (RMS over the frames, fit.q_std), "
-                       f"more than the {AMBIGUOUS_DEG:g} claimed")) if flag)
+                       f"more than the {AMBIGUOUS_DEG:g} {unit[k]} claimed")) if flag)
         for k in range(robot.nv)]
     ambiguous = ambiguous | poor | uncertain
     return dict(q_std=std, noise_px=noise, alternatives=alts, ambiguous=ambiguous, ambiguity_deg=worst, notes=notes,
