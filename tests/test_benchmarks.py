@@ -183,3 +183,33 @@ def test_pinhole_robots_json_resumes_and_its_table_counts_judged_and_flagged_joi
     assert cells[3:5] == ["2", "1"] and cells[5].startswith("inf / inf")
     assert cells[6].startswith("0 of 2") and cells[7] == f"{flagged['joints'][0]['name']} 37.50 (tie)"
     assert "Failed runs:" in out and "seed 1: ValueError: x" in out
+
+
+def test_full_range_judges_a_flagged_relative_joint_by_its_change_and_names_each_joints_reason():
+    # a joint seen only relative to frame 0 is compared without its offset also when flagged (the
+    # Panda's first joint was counted 51 degrees off for a 1 degree error), and a flagged joint's reason
+    # is its own (the fit's joint_reasons), not the first sentence of the message that names it
+    import dataclasses
+    from types import SimpleNamespace
+
+    from chainspace.bench.full_range import judge_joints
+    from chainspace.io.urdf import from_urdf
+    from chainspace.robot.fit import fit_joint_angles
+    from chainspace.synthetic.robot import synthesize
+
+    chain = from_urdf(Path(__file__).resolve().parents[1] / "robots" / "milling_arm.urdf")
+    t = synthesize(chain, n_frames=8, noise_px=0.0, seed=11, camera="static")
+    fit = fit_joint_angles(t.positions, chain=chain, transform="none")
+    reasons = ["tie: 1 other motion(s) fit the tracks as well", "", "", "uncertain: standard deviation 2.4 deg", "", ""]
+    flagged = dataclasses.replace(fit, relative=np.arange(6) == 0, observable=np.arange(6) != 0,
+                                  ambiguous=np.array([r != "" for r in reasons]), joint_reasons=reasons,
+                                  message="ambiguous: joint_a1, joint_a4 (a message naming both)")
+    truth = t.q.copy()
+    truth[:, 0] += 0.7  # the relative joint's offset
+    truth[:, 3] += np.radians(5.0)  # 5 degrees off on a flagged joint
+    rows = {j["name"]: j for j in judge_joints(flagged, SimpleNamespace(q=truth))}
+    assert rows["joint_a1"]["status"] == "ambiguous" and rows["joint_a1"]["error"] < 1e-3
+    assert rows["joint_a1"]["verdict"] == "ok"
+    assert rows["joint_a4"]["verdict"] == "flagged" and rows["joint_a4"]["error"] == pytest.approx(5.0, abs=1e-3)
+    assert rows["joint_a4"]["reason"] == f"ambiguous ({reasons[3]})"
+    assert all(rows[n]["verdict"] == "ok" for n in ("joint_a2", "joint_a3", "joint_a5", "joint_a6"))

@@ -131,8 +131,10 @@ def test_uncertainty_round_trips_through_save_and_load_and_shows_in_the_report(f
     trial, fit = fitted
     amb = np.zeros(len(fit.joint_names), bool)
     amb[3] = True
+    reasons = ["tie: 1 other motion(s) fit the tracks as well" if a else "" for a in amb]
     fake = dataclasses.replace(fit, ambiguous=amb, message=fit.message + "; ambiguous: joint_a4 (180 deg RMS): test",
-                               alternatives=[dict(angles=fit.angles + 0.5, score=1.5, settled_by=None)])
+                               alternatives=[dict(angles=fit.angles + 0.5, score=1.5, settled_by=None)],
+                               joint_reasons=reasons)
     paths = save_results(fake, tmp_path / "fit")
     back = load_results(next(p for p in paths if p.suffix == ".npz"))
     assert np.allclose(back.q_std, fit.q_std, equal_nan=True)
@@ -141,6 +143,7 @@ def test_uncertainty_round_trips_through_save_and_load_and_shows_in_the_report(f
     rep = validate(back, trial.q)
     row = rep.joints[3]
     assert row["status"] == "ambiguous" and not row["judged"] and row["rms"] is not None
+    assert back.joint_reasons == reasons and row["reason"] == reasons[3]
     assert "reported std" in rep.table() and "ambiguous" in rep.table()
     assert all(j.get("std_median") for j in rep.joints if j["status"] == "observable")
     assert "ambiguous" in back.summary().splitlines()[3]
@@ -175,6 +178,9 @@ def test_a_pinhole_fit_is_assessed_too_and_a_wrist_flip_that_moves_no_point_is_a
         assert 0.5 < trust["noise_px"] < 2.0
         assert trust["ambiguous"].tolist() == [False, False, False, True, True, True]
         assert "ambiguous: joint_a4" in trust["notes"][0]
+        # each joint's own reason: the tie for the wrist, nothing for the rest
+        assert [r.startswith("tie: ") for r in trust["reasons"]] == trust["ambiguous"].tolist()
+        assert trust["reasons"][:3] == ["", "", ""]
         assert min(a["score"] for a in trust["alternatives"]) < 1.0  # the exact twin fits as well
 
 
@@ -222,3 +228,23 @@ def test_joint_covariance_is_the_full_matrix_whose_diagonal_joint_std_reports(ar
     # frames are correlated through the prior and the shared camera: not a diagonal matrix
     corr = cov[~held][:, ~held] / np.outer(np.sqrt(np.diag(cov)[~held]), np.sqrt(np.diag(cov)[~held]))
     assert np.abs(corr[0, robot.nv:]).max() > 0.1
+
+
+def test_a_joint_whose_standard_deviation_exceeds_the_accuracy_claimed_is_uncertain(arm):
+    from chainspace.robot.uncertainty import AMBIGUOUS_DEG, uncertain_joints
+
+    chain, robot = arm
+    F, nv = 8, robot.nv
+    std = np.full((F, nv), np.radians(0.5))
+    std[:, 1] = np.radians(AMBIGUOUS_DEG) * np.linspace(0.6, 1.4, F)  # RMS just above the claim
+    std[:, 2] = np.radians(AMBIGUOUS_DEG) * 0.95  # just below it
+    std[:, 4] = np.nan  # held: nothing known, nothing flagged
+    std[:, 5] = np.radians(3.0)
+    std[3, 5] = np.nan  # unseen in one frame: RMS over the frames where it is known
+    judged = np.ones(nv, bool)
+    flags, spread = uncertain_joints(robot, std, judged)
+    rms1 = AMBIGUOUS_DEG * np.sqrt(np.mean(np.linspace(0.6, 1.4, F) ** 2))
+    assert rms1 > AMBIGUOUS_DEG and spread[1] == pytest.approx(rms1) and spread[5] == pytest.approx(3.0)
+    assert flags.tolist() == [False, True, False, False, False, True] and np.isnan(spread[4])
+    judged[5] = False  # not judged (not observable): never flagged
+    assert uncertain_joints(robot, std, judged)[0].tolist() == [False, True, False, False, False, False]

@@ -70,14 +70,38 @@ def test_bad_input(fitted):
 
 
 def test_each_flagged_joint_gets_its_own_reason(fitted):
-    # a fit's message can flag joints twice over: tied with another motion, or not explained by the fit
+    # the fit keeps one reason per joint (tied with another motion, not explained by the fit, or too
+    # uncertain); validate gives each flagged joint its own, whatever the message says
     t, fit = fitted
-    poor = "poor fit: joint_a1, joint_a2: the tracks of base are fitted 3.0 times further off (median)"
-    tied = "ambiguous: joint_a4 (180 deg RMS), joint_a6 (180 deg RMS): 1 other motion(s) fit the tracks as well"
-    flagged = type(fit)(**{**fit.__dict__, "ambiguous": np.array([True, True, False, True, False, True]),
-                           "message": f"converged; {poor}; {tied}"})
+    amb = np.array([True, True, False, True, False, True])
+    reasons = ["poor fit: the tracks of base are fitted 3.0 times further off", "poor fit: the tracks of base", "",
+               "tie: 1 other motion(s) fit the tracks as well and differ here by up to 180 deg RMS",
+               "", "uncertain: standard deviation 2.4 deg (RMS over the frames, fit.q_std)"]
+    flagged = type(fit)(**{**fit.__dict__, "ambiguous": amb, "joint_reasons": reasons,
+                           "message": "converged; ambiguous: joint_a6 (180 deg RMS)"})
     rows = {j["name"]: j for j in validate(flagged, t.q).joints}
     assert [rows[n]["status"] for n in ("joint_a1", "joint_a3", "joint_a4")] == ["ambiguous", "observable", "ambiguous"]
-    assert rows["joint_a1"]["reason"] == rows["joint_a2"]["reason"] == poor
-    assert rows["joint_a4"]["reason"] == rows["joint_a6"]["reason"] == tied
-    assert "reason" not in rows["joint_a3"] and not rows["joint_a1"]["judged"]
+    assert [rows[n].get("reason") for n in fit.joint_names] == [r if a else None for r, a in zip(reasons, amb)]
+    assert not rows["joint_a1"]["judged"] and rows["joint_a3"]["judged"]
+    table, summary = validate(flagged, t.q).table(), flagged.summary().splitlines()
+    assert all(r in table for r in reasons) and summary[5].startswith("joint_a6: ambiguous") and reasons[5] in summary[5]
+    # a fit saved before the reasons were kept per joint: its message, for each flagged joint
+    old = type(fit)(**{**flagged.__dict__, "joint_reasons": []})
+    assert {j.get("reason") for j in validate(old, t.q).joints if j["status"] == "ambiguous"} == {old.message}
+
+
+@pytest.mark.parametrize("field", ["ambiguous", "relative", "joint_reasons"])
+def test_per_joint_fields_of_the_wrong_length_are_a_clear_error(fitted, tmp_path, field):
+    # read one per joint, flags for 5 of 6 joints would mark the wrong joints: refused, naming the field
+    from chainspace.errors import TrackError
+    from chainspace.io.results import save_results
+
+    t, fit = fitted
+    n = len(fit.joint_names)
+    value = [""] * (n - 1) if field == "joint_reasons" else np.ones(n - 1, bool)
+    bad = type(fit)(**{**fit.__dict__, field: value})
+    with pytest.raises(TrackError, match=f"{field}.*{n - 1}.*{n} joints"):
+        validate(bad, t.q)
+    with pytest.raises(TrackError, match=field):
+        save_results(bad, tmp_path / "fit")
+    assert not list(tmp_path.iterdir())  # nothing written

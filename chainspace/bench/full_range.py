@@ -12,7 +12,7 @@ camera's intrinsics and the tracks for a pinhole camera).
 Each joint of each run gets one verdict:
 
 * ``ok``: within :data:`JOINT_DEG` degrees RMS of the truth (a joint reported relative to frame 0 is
-  compared after removing its mean offset, as :func:`chainspace.validate` does; a prismatic joint within
+  compared after removing its mean offset, as :func:`chainspace.validate` does, also when flagged; a prismatic joint within
   :data:`JOINT_MM` mm);
 * ``flagged``: the fit's report gives it any status other than "observable" or "relative to frame 0"
   (not observable, ambiguous, ...), read from :func:`chainspace.validate`'s joint rows: its reason is
@@ -76,27 +76,27 @@ def _wrap(d: np.ndarray) -> np.ndarray:
 def judge_joints(fit: Any, trial: Any) -> list[dict[str, Any]]:
     """One row per joint (degree of freedom): name, status (the fit's report), error (RMS, degrees or mm,
     of every joint whatever its status), unit, verdict ("ok", "flagged" or "silent") and reason."""
+    from ..robot.result import joint_flags
     from ..robot.validation import validate
 
     rep = validate(fit, trial.q)
     robot = fit.kinematics()
     a, ta = robot.angles(np.asarray(fit.q, float)), robot.angles(np.asarray(trial.q, float))
+    relative = joint_flags(fit, "relative", robot.nv)
+    diff = robot.wrap_angles(a - ta)
     rows = []
     for k, j in enumerate(rep.joints):
         status = str(j["status"])
-        d = a[:, k] - ta[:, k]
-        if robot.turns_v[k]:
-            d = _wrap(d)
-        if status == "relative to frame 0":  # seen up to a constant: compared without it
+        d = diff[:, k]
+        if relative[k]:  # seen up to a constant (also when flagged): compared without it
             d = _wrap(d - np.angle(np.mean(np.exp(1j * d)))) if robot.turns_v[k] else d - d.mean()
         prismatic = bool(robot.prismatic_v[k])
         err = float(np.sqrt(np.mean(d ** 2)) * (1000.0 if prismatic else np.degrees(1.0)))
         tol = JOINT_MM if prismatic else JOINT_DEG
         if err <= tol:
             verdict, reason = "ok", ""
-        elif status not in JUDGED:  # the fit's own words for it, where its message names the joint
-            why = [c.strip() for c in str(fit.message).split(";") if j["name"] in c]
-            verdict, reason = "flagged", status + (f" ({why[0][:160]})" if why else "")
+        elif status not in JUDGED:  # the fit's own words for this joint (validate's row)
+            verdict, reason = "flagged", status + (f" ({j['reason'][:160]})" if j.get("reason") else "")
         else:
             verdict, reason = "silent", f"reported {status}"
         rows.append(dict(name=j["name"], status=status, error=err, unit="mm" if prismatic else "deg",

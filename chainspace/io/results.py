@@ -228,11 +228,11 @@ def _fit_summary(fit: Any) -> dict[str, Any]:
     q = np.asarray(fit.q)
     scale = getattr(fit, "scale", None)
     scale = float(scale) if scale is not None and np.isfinite(scale) and float(scale) > 0 else None
+    from ..robot.result import joint_flags, joint_reasons
+
     def flagged(attr: str) -> list[str]:
         """The joint names where the fit's per-joint flags ``attr`` are set (none when it has none)."""
-        value = getattr(fit, attr, None)
-        flags = np.zeros(0, bool) if value is None else np.asarray(value, dtype=bool).reshape(-1)
-        return [n for n, f in zip(fit.joint_names, flags, strict=False) if f]
+        return [n for n, f in zip(fit.joint_names, joint_flags(fit, attr), strict=True) if f]
 
     return {
         "kind": "joint_fit",
@@ -254,6 +254,7 @@ def _fit_summary(fit: Any) -> dict[str, Any]:
         "residual_px": stats(respx, 1.0),
         "relative_to_frame_0": flagged("relative"),
         "ambiguous": flagged("ambiguous"),
+        "joint_reasons": {n: r for n, r in zip(fit.joint_names, joint_reasons(fit), strict=True) if r},
         "noise_px": (float(fit.noise_px) if getattr(fit, "noise_px", None) is not None and np.isfinite(fit.noise_px)
                      else None),
         "q_std_median": (None if getattr(fit, "q_std", None) is None else
@@ -279,7 +280,7 @@ _ARRAY_FIELDS = {
     "joint_fit": ("q", "joint_names", "observable", "positions", "residual_3d", "residual_px", "converged",
                   "scale", "rotation", "translation", "cameras", "translations_2d", "urdf_path", "message",
                   "n_iter", "intrinsics", "camera_pose", "focal_px", "focal_std_px", "q_std", "noise_px",
-                  "alternatives", "ambiguous"),
+                  "alternatives", "ambiguous", "joint_reasons"),
 }
 _JSON_FIELDS = ("history", "timings")  # dicts: kept in the summary JSON inside the NPZ
 
@@ -424,8 +425,9 @@ def _rebuild(kind: str, data: dict[str, np.ndarray], summary: dict, chain: Any) 
             kwargs[f.name] = _scalar(data[f.name])
         elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
             kwargs[f.name] = None
-    if "joint_names" in kwargs:
-        kwargs["joint_names"] = list(np.atleast_1d(kwargs["joint_names"]).tolist())
+    for name in ("joint_names", "joint_reasons"):  # lists of str, saved as arrays
+        if name in kwargs and kwargs[name] is not None:
+            kwargs[name] = [str(v) for v in np.atleast_1d(kwargs[name]).tolist()]
     try:
         return cls(**kwargs)
     except (TypeError, ValueError):
@@ -469,5 +471,6 @@ def load_results(path: str | os.PathLike) -> Any:
         setattr(ns, k, _scalar(data[k]) if k in data else None)
     if kind == "joint_fit":
         ns.joint_names = list(np.atleast_1d(ns.joint_names).tolist())
+        ns.joint_reasons = [] if ns.joint_reasons is None else [str(v) for v in np.atleast_1d(ns.joint_reasons)]
     return ns
 

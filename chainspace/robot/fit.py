@@ -105,7 +105,9 @@ camera (which a pinhole projects as it projects their mirror through the camera 
 
 Perspective settles the depth mirror: a motion and its mirror image no longer project alike, so
 the perspective fit starts from the weak fit's winner *and* its distinct alternatives (mirror images,
-the reflection about the symmetry plane; at most three), and the lowest perspective objective wins.
+the reflection about the symmetry plane): each through the camera stage, the winner and the two
+others that fit best there refined in full (``perspective.MAX_STARTS``), and the lowest perspective
+objective wins.
 The camera-side rule (``view_from``) and the rest-pose rule then decide nothing; ``message`` says
 whether the choice was clear (the objectives more than 25 noise variances apart) or a guess. The
 joints seen only relative to frame 0, and the face-on planes of a wrist, are as above (a turn about
@@ -630,7 +632,7 @@ def fit_joint_angles(
         message=msg, n_iter=int(n_iter), relative=relative,
         tracks=tracks, confidence=confidence, positions_base=pos_base, input_poses=poses, timings=timings,
         q_std=trust.get("q_std"), noise_px=trust.get("noise_px"), alternatives=trust.get("alternatives", []),
-        ambiguous=trust.get("ambiguous", np.zeros(robot.nv, bool)),
+        ambiguous=trust.get("ambiguous", np.zeros(robot.nv, bool)), joint_reasons=trust.get("reasons", []),
     )
 
 
@@ -683,7 +685,6 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     for st in starts:  # the weak fit's winner and its distinct alternatives (mirror images, flips)
         if not any(_same_motion(robot, st["q"], d["q"]) for d in distinct):
             distinct.append(st)
-    distinct = distinct[:3]
     t1 = time.perf_counter()
     best = refine_perspective(robot, distinct, tracks_u, w2, None if cam is None else cam.K, image_size, accel_std,
                               fps, speed_decay_s, _unseen(robot, w2), max_iter, tol, weak_sse,
@@ -715,7 +716,8 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     residual_3d = _rms_per_frame(np.linalg.norm(positions - np.nan_to_num(poses), axis=-1), w3)
     # the weak fit's ambiguities are perspective's to settle: its own (trust) notes replace them
     msg = "; ".join(m for m in weak_msg.split("; ") if not m.startswith(
-        ("ambiguous: ", "the reported one is a guess (fit.alternatives)", "the tracked points hang")))
+        ("ambiguous: ", "the reported one is a guess (fit.alternatives)", "the tracked points hang", "poor fit: ",
+         "uncertain: ")))
     tie_note = "; the motion and its mirror image fit the data equally well (weak perspective)"
     if tie_note in msg:
         cut = msg.index(tie_note)
@@ -742,5 +744,5 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         positions_base=pos_base, input_poses=poses, timings=timings, intrinsics=cam,
         camera_pose=(view.R[0].copy(), view.t[0].copy()), focal_px=focal, focal_std_px=focal_std,
         q_std=trust["q_std"], noise_px=trust["noise_px"], alternatives=trust["alternatives"],
-        ambiguous=trust["ambiguous"],
+        ambiguous=trust["ambiguous"], joint_reasons=trust["reasons"],
     )

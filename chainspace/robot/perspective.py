@@ -2,7 +2,9 @@
 focal length estimated) fitted with the joint angles on the reprojection error in pixels, started from
 the weak-perspective fit's winner and its mirror/flip alternatives (see :mod:`chainspace.robot.fit`),
 each camera from the weak camera's pose and, with K known, from PnP on the start's points
-(:func:`_pnp_camera`); fits with points behind the camera are dropped (:func:`_in_front`).
+(:func:`_pnp_camera`); every start goes through that camera stage, and the winner and the others that
+fit best there are refined in full (:data:`MAX_STARTS`); fits with points behind the camera are
+dropped (:func:`_in_front`).
 Perspective then decides the depth mirrors the weak fit left open: under the winner's camera the
 other starts' branches beyond each joint are tried on the winner's arm (:func:`_grafted`). The
 winner's standard deviations and alternatives: :func:`_trust`.
@@ -23,6 +25,13 @@ from .candidates import _viterbi_reanchored
 LR_MARGIN = 25.0
 # the focal length counts as measured when its standard deviation is below this fraction of it
 FOCAL_REL_STD = 0.25
+# weak-perspective starts refined in full: the weak fit's winner and those of the others that fit best
+# after the camera stage. The weak fit's order says nothing about perspective: its mirror and flip
+# twins tie there. The Panda from above (full ranges, seed 0): of six distinct starts, the first three
+# (then the only ones refined) were 40-125 degrees off on joints 1-5; the fourth, 5-20 degrees off, is
+# in the true motion's basin, 340 noise variances below the reported one's, which was reported
+# observable, 230 mm off
+MAX_STARTS = 3
 
 
 def _robust(rn: np.ndarray, w: np.ndarray, delta: float | None) -> float:
@@ -88,8 +97,10 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
                        K: np.ndarray | None, image_size, accel_std: float | None, fps: float,
                        speed_decay_s: float | None, unseen: np.ndarray, max_iter: int, tol: float,
                        weak_sse: float, smooth: bool, search_ties: bool = False) -> dict:
-    """Fit the pinhole camera and joint angles from each weak-perspective start, and from the best
-    graft of the others onto the winner (:func:`_grafted`); keep the lowest objective.
+    """Fit the pinhole camera and joint angles from the weak-perspective starts (every one through the
+    camera stage; the first, the weak fit's winner, and the others of lowest cost there refined in full,
+    :data:`MAX_STARTS` in all), and from the best graft of the others onto the winner
+    (:func:`_grafted`); keep the lowest objective.
 
     starts: dicts with q (F, nq), view (weak :class:`_View`), free, free_prior (F, nv), delta (Huber).
     K (3, 3) known intrinsics (tracks already undistorted), or None with ``image_size`` (w, h): the
@@ -115,7 +126,6 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     F = len(tracks)
     n_obs = 2 * int((w > 0).sum())
     fits = []
-    chosen_f = None
 
     def finish(q, pv, st, n_iter):
         """LM on everything from (q, pv), the branch of every frame re-chosen under this camera, then
@@ -145,18 +155,16 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
                     objective=objective, sse=float((w * out[2] ** 2).sum()), free=st["free"], delta=delta,
                     prior=prior, start=st)
 
-    for st in starts:
-        q0 = st["q"]
+    def camera_start(st, focals):
+        """The camera alone from the start's pose (the weak camera's, and with K known PnP's), then
+        per-frame IK under it, alternated (the focal held): (cost, camera, q, focal, iterations) of the
+        camera start and focal that fit best. The weak start's motion can be far off under perspective,
+        so the focal and the camera are chosen after the IK."""
+        q0, delta = st["q"], st["delta"]
         pos0 = robot.positions(q0)
-        delta = st["delta"]
         none_free = np.zeros_like(st["free"])
-        ones_k, n_iter = np.ones(6, bool), 0
-        best_cam = None
-        for f0 in (f_inits if fit_focal and chosen_f is None else [chosen_f or f_inits[0]]):
-            # per focal and camera start (the weak camera's pose; with K known, also PnP on the start's
-            # points): the camera alone, then per-frame IK under it, alternated (the focal held); the weak
-            # start's motion can be far off under perspective, so the focal and the camera are chosen after
-            # the IK
+        ones_k, n_iter, best_cam = np.ones(6, bool), 0, None
+        for f0 in focals:
             cams = [_pinhole_from_weak(st["view"], pos0, f0, c, False)]
             cams += [] if fit_focal else [_pnp_camera(pos0, tr, w, f0, c)]
             for pv in cams:
@@ -171,14 +179,23 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
                 cost = _robust(np.linalg.norm(pv.apply(robot.positions(q))[0] - np.nan_to_num(tr), axis=-1), w, delta)
                 if best_cam is None or cost < best_cam[0]:
                     best_cam = (cost, pv, q, f0)
-        _, pv, q, f0 = best_cam
-        chosen_f = chosen_f or (f0 if fit_focal else None)  # the other starts reuse the winner's focal
+        return best_cam + (n_iter,)
+
+    # every start through the camera stage (the first over the focal guesses; the others reuse its focal),
+    # then the weak fit's winner and the others of lowest cost there refined in full (MAX_STARTS in all)
+    screened = [camera_start(starts[0], f_inits)]
+    chosen_f = screened[0][3] if fit_focal else None
+    screened += [camera_start(st, [chosen_f or f_inits[0]]) for st in starts[1:]]
+    keep = [0] + sorted(range(1, len(starts)), key=lambda k: screened[k][0])[:MAX_STARTS - 1]
+    for k in keep:
+        st, (_, pv, q, f0, n_iter) = starts[k], screened[k]
+        none_free = np.zeros_like(st["free"])
         pv = _PinholeView(pv.R, pv.t, pv.f, pv.c, pv.cam_of, fit_focal)
         if fit_focal:
             ones = np.ones(pv.n_params, bool)
             for _ in range(3):  # per-frame IK under the camera, alternated with the camera and its focal
                 q, _, _, _, _, it = _sequence_lm(robot, q, tr, w, pv, st["free"], ~ones, 10, 1e-8, None)
-                pv = _sequence_lm(robot, q, tr, w, pv, none_free, ones, 10, 1e-10, delta)[1]
+                pv = _sequence_lm(robot, q, tr, w, pv, none_free, ones, 10, 1e-10, st["delta"])[1]
                 n_iter += it
         fits.append(finish(q, pv, st, n_iter))
     # a pinhole projects y and -y alike: a fit with the robot behind its camera (the true one's twin through

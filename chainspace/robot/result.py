@@ -11,12 +11,38 @@ from ..chain import KinematicChain
 from .kinematics import RobotKinematics
 
 
-def joint_flags(fit: Any, attr: str, n: int) -> np.ndarray:
-    """(n,) bool: the fit's per-joint flags ``attr`` (such as ``ambiguous``); all False when the fit has
-    none, or not one per joint (a fit saved before they existed)."""
+def joint_flags(fit: Any, attr: str, n: int | None = None) -> np.ndarray:
+    """(n,) bool: the fit's per-joint flags ``attr`` (such as ``ambiguous`` or ``relative``), n the
+    number of joints (default: ``len(fit.joint_names)``); all False when the fit has none (None or
+    empty: a fit saved before they existed). Flags of any other length raise a
+    :class:`~chainspace.errors.TrackError` naming the field and both lengths: read one per joint, they
+    would mark the wrong joints."""
+    from ..errors import TrackError
+
+    n = len(fit.joint_names) if n is None else n
     value = getattr(fit, attr, None)
-    flags = np.zeros(0, bool) if value is None else np.asarray(value, dtype=bool)
-    return flags if flags.shape == (n,) else np.zeros(n, bool)
+    flags = np.zeros(0, bool) if value is None else np.asarray(value, dtype=bool).reshape(-1)
+    if flags.size == 0:
+        return np.zeros(n, bool)
+    if flags.size != n:
+        raise TrackError(f"the fit's {attr!r} has {flags.size} flags for {n} joints ({', '.join(fit.joint_names)}); "
+                         "it was not saved by this fit")
+    return flags
+
+
+def joint_reasons(fit: Any) -> list[str]:
+    """Why each joint of the fit is flagged (one string per joint, "" where it is not; see
+    :attr:`JointFit.joint_reasons`). A fit saved before the reasons were kept per joint gives its
+    whole message for each flagged joint."""
+    n = len(fit.joint_names)
+    reasons = list(getattr(fit, "joint_reasons", None) or [])
+    if len(reasons) == n:
+        return [str(r) for r in reasons]
+    if reasons:
+        from ..errors import TrackError
+
+        raise TrackError(f"the fit's joint_reasons has {len(reasons)} entries for {n} joints; it was not saved by this fit")
+    return [str(fit.message) if a else "" for a in joint_flags(fit, "ambiguous", n)]
 
 
 @dataclass
@@ -43,8 +69,10 @@ class JointFit:
     coordinate); NaN where a joint is held (not observable). ``alternatives``: the other motions that
     fit the tracks as well (a likelihood-ratio test), each ``{"angles": (F, nv), "score": how much
     worse in noise variances, "settled_by": the rule that validly set it aside or None}``.
-    ``ambiguous`` (nv,) bool: joints where an unsettled alternative differs by more than
-    :data:`~chainspace.robot.uncertainty.AMBIGUOUS_DEG` degrees RMS (reported, not trusted).
+    ``ambiguous`` (nv,) bool: joints reported, not trusted: an unsettled alternative differs there by
+    more than :data:`~chainspace.robot.uncertainty.AMBIGUOUS_DEG` degrees RMS ("tie"), the fit misses a
+    tracked point the joint moves ("poor fit"), or its standard deviation is more than that ("uncertain");
+    ``joint_reasons`` (nv,) str: why, per joint ("" where not flagged).
     """
 
     q: np.ndarray
@@ -77,6 +105,7 @@ class JointFit:
     noise_px: float | None = None  # measured pixel noise (per coordinate) that scales q_std
     alternatives: list[dict] = field(default_factory=list)  # {"angles" (F, nv), "score", "settled_by"}
     ambiguous: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # (nv,)
+    joint_reasons: list[str] = field(default_factory=list)  # (nv,) why each ambiguous joint is; "" elsewhere
 
     @property
     def n_frames(self) -> int:
@@ -115,18 +144,18 @@ class JointFit:
         """Per joint (``joint_names``): "observable", "relative to frame 0", "not observable" or
         "ambiguous" (an alternative motion that fits as well differs there: see ``alternatives``)."""
         n = len(self.joint_names)
-        amb = np.asarray(self.ambiguous, bool) if np.size(self.ambiguous) == n else np.zeros(n, bool)
+        amb, rel = joint_flags(self, "ambiguous", n), joint_flags(self, "relative", n)
         obs = np.asarray(self.observable, bool).reshape(-1)
-        rel = np.asarray(self.relative, bool) if np.size(self.relative) == n else np.zeros(n, bool)
         if obs.size != n:  # a fit saved with one flag per q entry
             obs = np.ones(n, bool)
         return ["ambiguous" if a else "observable" if o else "relative to frame 0" if r else "not observable"
                 for a, o, r in zip(amb, obs, rel)]
 
     def summary(self) -> str:
-        """Plain text, one line per joint: its status and median standard deviation (degrees, mm for
-        prismatic joints), then the measured pixel noise, the alternatives and the fit's message."""
+        """Plain text, one line per joint: its status, median standard deviation (degrees, mm for
+        prismatic joints) and why it is flagged, then the measured pixel noise, the alternatives and the fit's message."""
         lines = []
+        reasons = joint_reasons(self)
         std = None if self.q_std is None else np.asarray(self.q_std, float)
         prismatic = (self.kinematics().prismatic_v if std is not None and self.urdf_path
                      else np.zeros(len(self.joint_names), bool))
@@ -135,7 +164,7 @@ class JointFit:
             if std is not None and np.isfinite(std[:, k]).any():
                 unit, scale = ("mm", 1000.0) if prismatic[k] else ("deg", np.degrees(1.0))
                 sd = f", std {scale * float(np.nanmedian(std[:, k])):.2f} {unit} (median over frames)"
-            lines.append(f"{name}: {status}{sd}")
+            lines.append(f"{name}: {status}{sd}" + (f" ({reasons[k]})" if reasons[k] and reasons[k] != self.message else ""))
         if self.noise_px is not None and np.isfinite(self.noise_px):
             lines.append(f"measured pixel noise: {self.noise_px:.2f} px")
         if self.alternatives:

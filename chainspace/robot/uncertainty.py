@@ -21,8 +21,11 @@ the noise by the share of it the fitted parameters absorbed).
 What the fit does not know is reported as ``ambiguous`` joints (:func:`assess_fit`): where another
 motion fits as well (the fit's candidates, the depth flips, the wrist's exact Euler twins
 (:func:`_wrist_twins`) and, with ``search_ties``, the searches) and differs by more than
-:data:`AMBIGUOUS_DEG`; and where the fit misses a tracked point in most frames ("poor fit",
-:func:`poor_fit_joints`): a wrong basin nothing ties with is still not an answer.
+:data:`AMBIGUOUS_DEG`; where the fit misses a tracked point in most frames ("poor fit",
+:func:`poor_fit_joints`): a wrong basin nothing ties with is still not an answer; and where the
+joint's own standard deviation is more than :data:`AMBIGUOUS_DEG` ("uncertain",
+:func:`uncertain_joints`): the tracks do not pin it down to the accuracy claimed. Each flagged
+joint's reasons are returned one per joint (``reasons``, ``JointFit.joint_reasons``).
 """
 
 from __future__ import annotations
@@ -213,6 +216,25 @@ def ambiguous_joints(robot: RobotKinematics, angles: np.ndarray, alternatives: l
     return (worst > AMBIGUOUS_DEG) & judged, worst
 
 
+
+def uncertain_joints(robot: RobotKinematics, std: np.ndarray, judged: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(nv,) joints, among ``judged`` (nv,), whose standard deviations std (F, nv; radians, metres for
+    prismatic joints, NaN where held) are, RMS over the frames, more than :data:`AMBIGUOUS_DEG` degrees
+    (millimetres for prismatic joints); and that RMS per joint (degrees or mm; NaN where none is known).
+
+    Why: a joint the tracks pin down only to several degrees is not known to the accuracy claimed, even
+    when nothing ties with the fit. The Panda from 20 degrees below its base (full ranges, 30 frames,
+    seed 0): panda_joint7, which turns the hand about the axis its tracked points lie near (only the
+    fingers, a few centimetres off it, show it), reported observable with a standard deviation of
+    1.2-3.5 degrees over the frames (2.2 RMS) and 3.7 degrees RMS off the truth; no other basin (a
+    refit from the true motion ends at the fit's), no other branch, a good fit (noise 0.97 px on 1 px
+    tracks): the tracks alone do not say more."""
+    known = np.isfinite(std).any(0)
+    ms = np.nanmean(np.where(known, std, 0.0) ** 2, axis=0)
+    spread = np.where(known, np.sqrt(ms) * np.where(robot.prismatic_v, 1000.0, np.degrees(1.0)), np.nan)
+    return judged & known & (np.nan_to_num(spread) > AMBIGUOUS_DEG), spread
+
+
 # a tracked point whose median residual exceeds this many times the median the measured noise gives
 # (sigma sqrt(2 ln 2), the median of a 2D Gaussian error's length) is not explained by the fit
 POOR_FIT_RATIO = 2.0
@@ -270,7 +292,8 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     or unseen without the motion prior; 0 for a joint seen relative to frame 0, in frame 0),
     ``noise_px`` (the measured pixel noise), ``alternatives`` (:func:`alternatives_of`; ``scored``
     holds (objective, fit) pairs, objectives in units where a noise variance is ``var``), ``ambiguous``
-    (nv,), ``ambiguity_deg`` (nv,) and ``notes`` (sentences for the fit's message).
+    (nv,: tied, poorly fitted or uncertain), ``ambiguity_deg`` (nv,), ``notes`` (sentences for the
+    fit's message) and ``reasons`` (nv strings: why each flagged joint is flagged, "" for the rest).
 
     ``winner``: the reported fit (``out``, ``q``, ``free``/``free_prior``, ``delta``); ``prior``: the
     motion prior it was smoothed with, or None; ``wrong_side(fit)``: the camera-side rule, True where
@@ -300,20 +323,36 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     poor, points, ratio = poor_fit_joints(robot, q, winner["out"][2], w, noise, extent) if np.isfinite(noise) else \
         (np.zeros(robot.nv, bool), [], None)
     poor &= ~blind
+    uncertain, spread = uncertain_joints(robot, std, ~blind)
+    unit = np.where(robot.prismatic_v, "mm", "deg")
     if poor.any():
         notes.append(f"poor fit: {', '.join(robot.joint_names[k] for k in np.flatnonzero(poor))}: the tracks of "
                      f"{', '.join(points)} are fitted {ratio.max():.1f} times further off (median) than the noise "
                      f"({noise:.2g} px) or the typical tracked point allow, so the fit ended in a wrong basin or the "
                      "model does not match the robot; the reported motion is not known to be right")
     if ambiguous.any():  # the tied joints only: a poorly fitted one has its own note above
-        names = [f"{robot.joint_names[k]} ({worst[k]:.0f} {'mm' if robot.prismatic_v[k] else 'deg'} RMS)"
-                 for k in np.flatnonzero(ambiguous)]
+        names = [f"{robot.joint_names[k]} ({worst[k]:.0f} {unit[k]} RMS)" for k in np.flatnonzero(ambiguous)]
         notes.append(f"ambiguous: {', '.join(names)}: {len(alts)} other motion(s) fit the tracks as well "
                      f"(within {_tie_variances():g} noise variances) and differ there by more than "
                      f"{AMBIGUOUS_DEG:g} degrees RMS; the reported one is a guess (fit.alternatives)"
                      + (f"; {side_why}" if side_why else ""))
-    ambiguous = ambiguous | poor
-    return dict(q_std=std, noise_px=noise, alternatives=alts, ambiguous=ambiguous, ambiguity_deg=worst, notes=notes)
+    if uncertain.any():
+        names = [f"{robot.joint_names[k]} ({spread[k]:.1f} {unit[k]})" for k in np.flatnonzero(uncertain)]
+        notes.append(f"uncertain: {', '.join(names)}: the reported standard deviation (RMS over the frames, "
+                     f"fit.q_std) is more than {AMBIGUOUS_DEG:g} degrees ({AMBIGUOUS_DEG:g} mm for a sliding joint): the "
+                     "tracks pin these joints down no better; reported, not trusted")
+    # one reason per joint ("" where none), each naming only what concerns that joint
+    reasons = ["; ".join(why for flag, why in (
+        (poor[k], f"poor fit: the tracks of {', '.join(points)} are fitted {ratio.max() if poor.any() else 0:.1f} "
+                  "times further off (median) than the noise or the typical tracked point allow"),
+        (ambiguous[k], f"tie: {len(alts)} other motion(s) fit the tracks as well and differ here by up to "
+                       f"{worst[k]:.0f} {unit[k]} RMS (fit.alternatives)"),
+        (uncertain[k], f"uncertain: standard deviation {spread[k]:.1f} {unit[k]} (RMS over the frames, fit.q_std), "
+                       f"more than the {AMBIGUOUS_DEG:g} {unit[k]} claimed")) if flag)
+        for k in range(robot.nv)]
+    ambiguous = ambiguous | poor | uncertain
+    return dict(q_std=std, noise_px=noise, alternatives=alts, ambiguous=ambiguous, ambiguity_deg=worst, notes=notes,
+                reasons=reasons)
 
 
 def _scorer(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict]], tracks: np.ndarray,

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DescriptionError, TrackError
-from .result import joint_flags
+from .result import joint_flags, joint_reasons
 
 __all__ = ["ValidationReport", "validate", "DEFAULT_THRESHOLDS", "BONES_NOTE"]
 
@@ -116,9 +116,14 @@ class ValidationReport:
         rel = [j["name"] for j in self.joints if j.get("status") == "relative to frame 0"]
         amb = [j for j in self.joints if j.get("status") == "ambiguous"]
         if amb:
-            reasons = dict.fromkeys(j.get("reason", "") for j in amb)  # distinct, in order
-            out.append(f"- {', '.join(j['name'] for j in amb)}: ambiguous (another motion fits the tracks as well, or "
-                       "the fit does not explain them; listed, not judged): " + "; ".join(r for r in reasons if r))
+            from .uncertainty import AMBIGUOUS_DEG
+
+            groups: dict[str, list[str]] = {}  # joints by reason, in order (a fit saved without per-joint
+            for j in amb:                      # reasons gives its whole message for each)
+                groups.setdefault(j.get("reason", ""), []).append(j["name"])
+            out.append("- ambiguous, listed and not judged (another motion fits the tracks as well, the fit does not "
+                       f"explain them, or the joint's standard deviation is more than {AMBIGUOUS_DEG:g} degrees): "
+                       + "; ".join(f"{', '.join(n)}: {r}" if r else ", ".join(n) for r, n in groups.items()))
         if rel:
             out.append(f"- {', '.join(rel)}: seen only relative to frame 0 (a turn of the camera looks the same), "
                        "so compared, and plotted, as the change since frame 0")
@@ -225,23 +230,21 @@ def _joint_errors(robot, fit, q, tq) -> list[dict[str, Any]]:
     a = robot.angles(q)
     ta = None if tq is None else robot.angles(tq)
     names = list(fit.joint_names) if len(fit.joint_names) == robot.nv else list(robot.joint_names)
-    relative = np.asarray(getattr(fit, "relative", np.zeros(len(names), bool)), bool)
-    observable = np.asarray(fit.observable, bool)
-    ambiguous = joint_flags(fit, "ambiguous", len(names))
-    std = getattr(fit, "q_std", None)
-    std = np.asarray(std, float) if std is not None and np.shape(std) == (len(q), len(names)) else None
-    # why each flagged joint is flagged: the message's "poor fit: ..." sentence where it names the joint,
-    # else its "ambiguous: ..." one (another motion ties)
-    parts = [m.strip() for m in str(getattr(fit, "message", "")).split("; ")]
-    tied = next((m for m in parts if m.startswith("ambiguous")), "")
-    poor = next((m for m in parts if m.startswith("poor fit")), "")
-    poor_names = set(poor.split(": ")[1].split(", ")) if poor.count(": ") >= 1 else set()
+    observable = np.asarray(fit.observable, bool).reshape(-1)
     if observable.size != robot.nv:  # a fit saved with one flag per q entry: flags of each joint's first entry
         first = [int(np.flatnonzero(robot._qv[:, v])[0]) for v in range(robot.nv)]
         observable = observable[first]
-        relative = relative[first] if relative.size else relative
+        relative = np.asarray(getattr(fit, "relative", None) if getattr(fit, "relative", None) is not None
+                              else np.zeros(0, bool), bool).reshape(-1)
+        relative = relative[first] if relative.size else np.zeros(robot.nv, bool)
+    else:
+        relative = joint_flags(fit, "relative", len(names))
+    ambiguous = joint_flags(fit, "ambiguous", len(names))
+    reasons = joint_reasons(fit)  # why each flagged joint is: the fit's own words for that joint
+    std = getattr(fit, "q_std", None)
+    std = np.asarray(std, float) if std is not None and np.shape(std) == (len(q), len(names)) else None
     for k, name in enumerate(names):
-        obs, rel = bool(observable[k]), bool(relative[k]) if relative.size else False
+        obs, rel = bool(observable[k]), bool(relative[k])
         status = "observable" if obs else ("relative to frame 0" if rel else "not observable")
         if ambiguous[k]:
             status = "ambiguous"
@@ -249,7 +252,7 @@ def _joint_errors(robot, fit, q, tq) -> list[dict[str, Any]]:
                                "rms": None, "max": None, "unit": "mm" if robot.prismatic_v[k] else "deg"}
         scale = np.degrees(1.0) if row["unit"] == "deg" else 1000.0
         if ambiguous[k]:
-            row["reason"] = poor if name in poor_names else tied
+            row["reason"] = reasons[k]
         if std is not None and np.isfinite(std[:, k]).any():
             row["std_median"] = float(np.nanmedian(std[:, k]) * scale)
         if ta is not None and (obs or rel or ambiguous[k]):
