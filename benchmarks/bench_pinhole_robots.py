@@ -19,8 +19,8 @@ then fitted with fit_joint_angles):
 
 Per row: runs, failed runs (an exception: counted in the error columns as infinite, and in its own), the
 worst judged joint's RMS (deg, mean and max over runs; the joint named), the judged joints (observable or
-seen relative to frame 0, and not flagged) and the flagged ones (the fit reports them ambiguous: a tie or
-a poor fit; listed with their error, not judged), the 3D error (% of reach), focal error (%, with the
+seen relative to frame 0, and not flagged) and the flagged ones (the fit reports them ambiguous: a tie, a
+poor fit or an uncertain joint; listed with their error, not judged), the 3D error (% of reach), focal error (%, with the
 fit's reported std), the share of the judged joints' frames whose error lies within one reported
 standard deviation (``fit.q_std``; honest: about 68 %), seconds and frames/s. The progress lines on
 stderr give each joint's RMS error beside the RMS of its reported std.
@@ -60,10 +60,17 @@ def film(chain, robot, cond, n_frames, seed):
     return synthesize(chain, distance_reaches=d, **kw)
 
 
+def _reason_kinds(reason: str) -> str:
+    """The kinds of a flagged joint's reasons ("tie", "poor fit", "uncertain"), from validate's reason
+    ("kind: why; kind: why")."""
+    kinds = [part.split(":")[0].strip() for part in reason.split("; ") if ":" in part]
+    return ", ".join(dict.fromkeys(kinds)) or "tie"
+
+
 def joint_report(fit, tr):
     """Per degree of freedom (validate's rows): name, status, judged, RMS and largest error (deg or mm), the RMS over
     frames of its reported std and the share of its frames within one std (None without q_std), and
-    for a flagged joint whether a poor fit or a tie flagged it."""
+    for a flagged joint what flagged it (a tie, a poor fit, an uncertain joint)."""
     from chainspace.robot.validation import validate
 
     std = None if fit.q_std is None else np.asarray(fit.q_std, float)
@@ -73,8 +80,7 @@ def joint_report(fit, tr):
         s = None if std is None or not np.isfinite(std[:, k]).any() else float(scale * np.sqrt(np.nanmean(std[:, k] ** 2)))
         out.append(dict(name=j["name"], status=j["status"], judged=bool(j["judged"]), unit=j["unit"], rms=j["rms"],
                         max=j["max"], std_rms=s, within=j.get("within_1_std_pct"),
-                        reason=("poor fit" if j.get("reason", "").startswith("poor fit") else "tie")
-                        if j["status"] == "ambiguous" else None))
+                        reason=_reason_kinds(j.get("reason") or "") if j["status"] == "ambiguous" else None))
     return out
 
 
