@@ -9,7 +9,7 @@ import pytest
 from chainspace.io.urdf import from_urdf
 from chainspace.robot.kinematics import RobotKinematics, _random_q
 from chainspace.robot.perspective import _in_front, _pnp_camera
-from chainspace.robot.uncertainty import POOR_FIT_RATIO, _wrist_twins, poor_fit_joints
+from chainspace.robot.uncertainty import POOR_FIT_RATIO, _wrist_twins, poor_fit_joints, track_jitter
 from chainspace.synthetic.robot import synthesize
 
 ROBOTS = Path(__file__).resolve().parents[1] / "robots"
@@ -65,6 +65,26 @@ def test_a_point_the_fit_misses_in_most_frames_flags_the_joints_that_move_it(arm
     tiny[:, tip] *= 5.0
     assert poor_fit_joints(robot, q, tiny, w, 1e-12)[0].any()  # without the floor: flagged
     assert not poor_fit_joints(robot, q, tiny, w, 1e-12, extent=500.0)[0].any()
+
+
+def test_a_fit_that_misses_every_point_is_judged_by_the_tracks_own_jitter(arm):
+    chain, robot = arm
+    trial = synthesize(chain, n_frames=60, noise_px=1.0, seed=3)
+    w = np.isfinite(trial.tracks).all(-1).astype(float)
+    assert 0.9 < track_jitter(trial.tracks, w) < 1.3  # 1 px of noise on a smooth motion
+    assert np.isnan(track_jitter(trial.tracks[:2], w[:2]))
+    rng = np.random.default_rng(4)
+    F, J = trial.tracks.shape[:2]
+    # a wrong basin that misses every point by some 50-100 px: the noise measured from these residuals
+    # is as large, and no point stands out from the typical one
+    rn = rng.uniform(50.0, 100.0, size=J) + np.linalg.norm(rng.normal(size=(F, J, 2)), axis=-1)
+    measured = float(np.median(rn)) / 1.1774
+    assert not poor_fit_joints(robot, trial.q, rn, w, measured)[0].any()
+    joints, points, ratio = poor_fit_joints(robot, trial.q, rn, w, measured, jitter=track_jitter(trial.tracks, w))
+    assert joints.all() and len(points) == J and ratio.min() > POOR_FIT_RATIO
+    # a good fit of the same tracks: the jitter changes nothing
+    good = np.linalg.norm(rng.normal(size=(F, J, 2)), axis=-1)
+    assert not poor_fit_joints(robot, trial.q, good, w, 1.0, jitter=track_jitter(trial.tracks, w))[0].any()
 
 
 def test_pnp_finds_the_pinhole_camera_and_a_camera_behind_the_robot_is_refused(arm):

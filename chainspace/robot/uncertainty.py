@@ -245,10 +245,38 @@ POOR_FIT_MIN_FRAMES = 5  # a point seen in fewer frames is not judged (its media
 # measured noise of 0.025 px (the demo: joint_a1 and a2 flagged with 0.2 degrees of error); a wrong
 # basin misses by pixels (the double pendulum's tip: about 3 px on a robot some 500 px across)
 POOR_FIT_FLOOR = 1e-3
+# the tracks' own jitter (:func:`track_jitter`) times this is a yardstick too (so a point is poorly
+# fitted beyond POOR_FIT_RATIO x JITTER_SLACK = 20 times it): slack for a tracker's errors that persist
+# over frames (a 2D tracker drifts; the jitter sees only the part that changes from frame to frame) and
+# for the motion's own change of acceleration, which the jitter counts as noise. Wrong basins miss by
+# far more (the close-range milling arm: 43-105 times its jitter)
+JITTER_SLACK = 10.0
+
+
+def track_jitter(tracks: np.ndarray, w: np.ndarray) -> float:
+    """The tracks' own noise, pixels per coordinate, measured without any fit: a robust standard
+    deviation of the second differences over three consecutive frames where a point is seen, over
+    sqrt(6) (white noise of sigma gives second differences of sigma sqrt(6)). A smooth motion adds
+    little at video rates (1 px noise on the milling arm's 300-frame motion: 1.10 px); NaN when no
+    point is seen in three consecutive frames.
+
+    Why: the measured noise that :func:`poor_fit_joints` compares with comes from the fit's own
+    residuals, so a fit in a wrong basin that misses every point inflates it with them. The milling
+    arm at close range (300 frames, 1 px, nearest point 0.3 m from a 90 degree lens): every start of
+    the perspective fit came from a weak-perspective fit 30-130 degrees off, the fit missed its points
+    by 56-136 px (median), its measured noise was 100 px, and joints 2 and 3 (79 and 46 degrees off)
+    were reported observable. The tracks' jitter there is 1.1 px."""
+    x = np.asarray(tracks, float)
+    seen = (np.asarray(w) > 0) & np.isfinite(x).all(-1)
+    if len(x) < 3:
+        return float("nan")
+    ok = seen[2:] & seen[1:-1] & seen[:-2]
+    d2 = np.abs((x[2:] - 2 * x[1:-1] + x[:-2])[ok]).ravel()
+    return 1.4826 * float(np.median(d2)) / np.sqrt(6.0) if d2.size else float("nan")
 
 
 def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np.ndarray,
-                    sigma: float, extent: float = 0.0) -> tuple[np.ndarray, list[str], np.ndarray]:
+                    sigma: float, extent: float = 0.0, jitter: float = np.nan) -> tuple[np.ndarray, list[str], np.ndarray]:
     """Joints (nv,) that move a tracked point the fit does not explain, the names of those points, and
     each point's ratio (J,) of its median residual to the noise's.
 
@@ -257,8 +285,11 @@ def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np
     :data:`POOR_FIT_MIN_FRAMES` frames and the median of its residual lengths exceeds
     :data:`POOR_FIT_RATIO` times ``sigma sqrt(2 ln 2)`` (a median, so that a few outlying detections do
     not count; a wrong basin misses a point in most frames) and :data:`POOR_FIT_FLOOR` times
-    ``extent``, the tracks' extent (px; 0: no floor). A poorly fitted point that no joint moves
-    (on the base) puts the camera in doubt, and with it every joint.
+    ``extent``, the tracks' extent (px; 0: no floor). Where the typical point's median or
+    :data:`JITTER_SLACK` times the tracks' own ``jitter`` (:func:`track_jitter`, px per coordinate; NaN:
+    not used) is lower than the measured noise, that is the yardstick: a wrong basin pulls the
+    measured noise up with it. A poorly fitted point that no joint moves (on the base) puts the camera
+    in doubt, and with it every joint.
 
     Why: the likelihood-ratio tests compare the fit with the motions the fit's searches reached; when
     every search ends in a wrong basin (a small robot near the camera, seen from below: the double
@@ -272,7 +303,8 @@ def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np
     # against the noise, or the typical point's median where that is lower (the measured noise is a
     # median over every residual, which a badly fitted point pulls up)
     typical = np.median(med[n >= POOR_FIT_MIN_FRAMES]) if (n >= POOR_FIT_MIN_FRAMES).any() else np.inf
-    ratio = med / max(min(sigma * np.sqrt(2 * np.log(2)), typical), 1e-12)
+    noise = min(sigma, JITTER_SLACK * jitter) if np.isfinite(jitter) else sigma
+    ratio = med / max(min(noise * np.sqrt(2 * np.log(2)), typical), 1e-12)
     bad = (n >= POOR_FIT_MIN_FRAMES) & (ratio > POOR_FIT_RATIO) & (med > POOR_FIT_FLOOR * extent)
     if not bad.any():
         return np.zeros(robot.nv, bool), [], ratio
@@ -320,16 +352,18 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     notes = []
     seen = np.isfinite(tracks).all(-1)
     extent = float(np.ptp(tracks[seen], axis=0).max()) if seen.any() else 0.0
-    poor, points, ratio = poor_fit_joints(robot, q, winner["out"][2], w, noise, extent) if np.isfinite(noise) else \
-        (np.zeros(robot.nv, bool), [], None)
+    jitter = track_jitter(tracks, w)
+    poor, points, ratio = poor_fit_joints(robot, q, winner["out"][2], w, noise, extent, jitter) \
+        if np.isfinite(noise) else (np.zeros(robot.nv, bool), [], None)
     poor &= ~blind
     uncertain, spread = uncertain_joints(robot, std, ~blind)
     unit = np.where(robot.prismatic_v, "mm", "deg")
     if poor.any():
         notes.append(f"poor fit: {', '.join(robot.joint_names[k] for k in np.flatnonzero(poor))}: the tracks of "
                      f"{', '.join(points)} are fitted {ratio.max():.1f} times further off (median) than the noise "
-                     f"({noise:.2g} px) or the typical tracked point allow, so the fit ended in a wrong basin or the "
-                     "model does not match the robot; the reported motion is not known to be right")
+                     f"({noise:.2g} px; the tracks' own jitter {jitter:.2g} px) or the typical tracked point allow, "
+                     "so the fit ended in a wrong basin or the model does not match the robot; the reported motion "
+                     "is not known to be right")
     if ambiguous.any():  # the tied joints only: a poorly fitted one has its own note above
         names = [f"{robot.joint_names[k]} ({worst[k]:.0f} {unit[k]} RMS)" for k in np.flatnonzero(ambiguous)]
         notes.append(f"ambiguous: {', '.join(names)}: {len(alts)} other motion(s) fit the tracks as well "
