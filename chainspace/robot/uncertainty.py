@@ -216,7 +216,6 @@ def ambiguous_joints(robot: RobotKinematics, angles: np.ndarray, alternatives: l
     return (worst > AMBIGUOUS_DEG) & judged, worst
 
 
-
 def uncertain_joints(robot: RobotKinematics, std: np.ndarray, judged: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(nv,) joints, among ``judged`` (nv,), whose standard deviations std (F, nv; radians, metres for
     prismatic joints, NaN where held) are, RMS over the frames, more than :data:`AMBIGUOUS_DEG` degrees
