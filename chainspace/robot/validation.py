@@ -234,8 +234,8 @@ def _joint_errors(robot, fit, q, tq) -> list[dict[str, Any]]:
     if observable.size != robot.nv:  # a fit saved with one flag per q entry: flags of each joint's first entry
         first = [int(np.flatnonzero(robot._qv[:, v])[0]) for v in range(robot.nv)]
         observable = observable[first]
-        relative = np.asarray(getattr(fit, "relative", None) if getattr(fit, "relative", None) is not None
-                              else np.zeros(0, bool), bool).reshape(-1)
+        saved = getattr(fit, "relative", None)
+        relative = np.zeros(0, bool) if saved is None else np.asarray(saved, bool).reshape(-1)
         relative = relative[first] if relative.size else np.zeros(robot.nv, bool)
     else:
         relative = joint_flags(fit, "relative", len(names))
