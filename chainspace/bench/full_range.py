@@ -69,10 +69,6 @@ def full_range_chain(name: str):
     return from_urdf(shipped_path(name) if name == "milling_arm" else example_robot_urdf(name))
 
 
-def _wrap(d: np.ndarray) -> np.ndarray:
-    return (d + np.pi) % (2 * np.pi) - np.pi
-
-
 def judge_joints(fit: Any, trial: Any) -> list[dict[str, Any]]:
     """One row per joint (degree of freedom): name, status (the fit's report), error (RMS, degrees or mm,
     of every joint whatever its status), unit, verdict ("ok", "flagged" or "silent") and reason."""
@@ -84,12 +80,14 @@ def judge_joints(fit: Any, trial: Any) -> list[dict[str, Any]]:
     a, ta = robot.angles(np.asarray(fit.q, float)), robot.angles(np.asarray(trial.q, float))
     relative = joint_flags(fit, "relative", robot.nv)
     diff = robot.wrap_angles(a - ta)
+    # a joint seen up to a constant (also when flagged) is compared without it: its circular mean for a
+    # turning joint, its mean for a sliding one
+    offset = np.where(robot.turns_v, np.angle(np.mean(np.exp(1j * diff), axis=0)), diff.mean(0))
+    diff_rel = robot.wrap_angles(diff - offset)
     rows = []
     for k, j in enumerate(rep.joints):
         status = str(j["status"])
-        d = diff[:, k]
-        if relative[k]:  # seen up to a constant (also when flagged): compared without it
-            d = _wrap(d - np.angle(np.mean(np.exp(1j * d)))) if robot.turns_v[k] else d - d.mean()
+        d = diff_rel[:, k] if relative[k] else diff[:, k]
         prismatic = bool(robot.prismatic_v[k])
         err = float(np.sqrt(np.mean(d ** 2)) * (1000.0 if prismatic else np.degrees(1.0)))
         tol = JOINT_MM if prismatic else JOINT_DEG
