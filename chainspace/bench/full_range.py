@@ -73,21 +73,17 @@ def judge_joints(fit: Any, trial: Any) -> list[dict[str, Any]]:
     """One row per joint (degree of freedom): name, status (the fit's report), error (RMS, degrees or mm,
     of every joint whatever its status), unit, verdict ("ok", "flagged" or "silent") and reason."""
     from ..robot.result import joint_flags
-    from ..robot.validation import validate
+    from ..robot.validation import compared_differences, validate
 
     rep = validate(fit, trial.q)
     robot = fit.kinematics()
     a, ta = robot.angles(np.asarray(fit.q, float)), robot.angles(np.asarray(trial.q, float))
     relative = joint_flags(fit, "relative", robot.nv)
-    diff = robot.wrap_angles(a - ta)
-    # a joint seen up to a constant (also when flagged) is compared without it: its circular mean for a
-    # turning joint, its mean for a sliding one
-    offset = np.where(robot.turns_v, np.angle(np.mean(np.exp(1j * diff), axis=0)), diff.mean(0))
-    diff_rel = robot.wrap_angles(diff - offset)
+    diff = compared_differences(robot, a, ta, relative)  # a relative joint without its offset, also when flagged
     rows = []
     for k, j in enumerate(rep.joints):
         status = str(j["status"])
-        d = diff_rel[:, k] if relative[k] else diff[:, k]
+        d = diff[:, k]
         prismatic = bool(robot.prismatic_v[k])
         err = float(np.sqrt(np.mean(d ** 2)) * (1000.0 if prismatic else np.degrees(1.0)))
         tol = JOINT_MM if prismatic else JOINT_DEG
@@ -171,7 +167,7 @@ def _note(exc: BaseException) -> str:
 
 
 def _error_3d_mm(fit: Any, trial: Any) -> float:
-    from ..robot.validation import validate
+    from ..robot.validation import compared_differences, validate
 
     rep = validate(fit, trial.q, truth_positions=trial.positions)
     return float("nan") if rep.error_3d_mm is None else float(rep.error_3d_mm)

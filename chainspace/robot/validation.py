@@ -142,8 +142,13 @@ class ValidationReport:
         return f"ValidationReport(passed={self.passed}, checks={self.checks})"
 
 
-def _wrap(d: np.ndarray) -> np.ndarray:
-    return (d + np.pi) % (2 * np.pi) - np.pi
+def compared_differences(robot: Any, a: np.ndarray, ta: np.ndarray, relative: np.ndarray) -> np.ndarray:
+    """(F, nv) fitted minus true per-dof coordinates a, ta (:meth:`RobotKinematics.angles`), turning
+    joints wrapped; a joint seen only up to a constant (``relative`` (nv,)) compared without it: its
+    circular mean for a turning joint, its mean for a sliding one."""
+    d = robot.wrap_angles(a - ta)
+    offset = np.where(robot.turns_v, np.angle(np.mean(np.exp(1j * d), axis=0)), d.mean(0))
+    return np.where(relative, robot.wrap_angles(d - offset), d)
 
 
 def validate(fit: Any, truth_q: Any = None, *, thresholds: dict[str, float] | None = None,
@@ -243,6 +248,11 @@ def _joint_errors(robot, fit, q, tq) -> list[dict[str, Any]]:
     reasons = joint_reasons(fit)  # why each flagged joint is: the fit's own words for that joint
     std = getattr(fit, "q_std", None)
     std = np.asarray(std, float) if std is not None and np.shape(std) == (len(q), len(names)) else None
+    if ta is not None:
+        d_all = robot.wrap_angles(a - ta)
+        # against the deviations as reported: a relative joint's are of its change since frame 0
+        d_std = np.where(relative, robot.wrap_angles(d_all - d_all[0]), d_all)
+        d_rms = compared_differences(robot, a, ta, relative)
     for k, name in enumerate(names):
         obs, rel = bool(observable[k]), bool(relative[k])
         status = "observable" if obs else ("relative to frame 0" if rel else "not observable")
@@ -256,16 +266,10 @@ def _joint_errors(robot, fit, q, tq) -> list[dict[str, Any]]:
         if std is not None and np.isfinite(std[:, k]).any():
             row["std_median"] = float(np.nanmedian(std[:, k]) * scale)
         if ta is not None and (obs or rel or ambiguous[k]):
-            d = a[:, k] - ta[:, k]
-            if robot.turns_v[k]:
-                d = _wrap(d)
             if std is not None and np.isfinite(std[:, k]).any():
-                # against the deviations as reported: a relative joint's are of its change since frame 0
-                d0 = (_wrap(d - d[0]) if robot.turns_v[k] else d - d[0]) if rel else d
                 ok = np.isfinite(std[:, k]) & (std[:, k] > 0)
-                row["within_1_std_pct"] = float(100 * np.mean(np.abs(d0[ok]) <= std[ok, k])) if ok.any() else None
-            if rel:  # seen only up to a constant: compare after removing the mean offset
-                d = _wrap(d - np.angle(np.mean(np.exp(1j * d)))) if robot.turns_v[k] else d - d.mean()
+                row["within_1_std_pct"] = float(100 * np.mean(np.abs(d_std[ok, k]) <= std[ok, k])) if ok.any() else None
+            d = d_rms[:, k]
             row["rms"] = float(np.sqrt(np.mean(d ** 2)) * scale)
             row["max"] = float(np.abs(d).max() * scale)
         out.append(row)
