@@ -276,3 +276,55 @@ def _turned_views(robot: RobotKinematics, q: np.ndarray, view: _View, gauge: np.
             image = view.apply(robot.positions(robot.integrate(q, dv, clip=False)))[0]  # a turn, not a pose
             views.append(_camera_view(pos, image, np.ones(pos.shape[:2]), False))
     return views
+
+
+# the reflection a mirror-symmetric robot's poses map onto one another by: the plane y = 0 of its base
+# frame, in which such a robot's tracked points lie at rest (most arms; a pendulum), as for the weak
+# fit's reflected candidate (chainspace.robot.fit)
+SYMMETRY_MIRROR = np.diag([1.0, -1.0, 1.0])
+
+
+def _mirror_pose(robot: RobotKinematics, q: np.ndarray, free: np.ndarray) -> np.ndarray | None:
+    """The motion (F, nq) that puts every tracked point where q (F, nq) puts it mirrored by
+    :data:`SYMMETRY_MIRROR`, or None when the robot cannot take that pose (within a thousandth of its
+    reach) in every frame: IK from q and from q's angles negated (the mirror of a symmetric arm)."""
+    pos = robot.positions(q)
+    target = pos @ SYMMETRY_MIRROR
+    F = len(q)
+    starts = [q, robot.from_angles(np.where(robot.turns_v, -robot.angles(q), robot.angles(q)))]
+    qs = _sequence_lm(robot, np.concatenate(starts), np.concatenate([target] * 2), np.ones((2 * F, pos.shape[1])),
+                      _View.identity(2 * F), np.tile(free, (2, 1)), np.zeros(7, bool), 30, 1e-10, None)[0]
+    qs = qs.reshape(2, F, -1)
+    miss = np.linalg.norm(robot.positions(qs.reshape(2 * F, -1)).reshape(2, F, -1, 3) - target, axis=-1).max((1, 2))
+    k = int(np.argmin(miss))
+    return robot.continuous(qs[k]) if miss[k] < 1e-3 * robot.reach() else None
+
+
+def _pinhole_twin(robot: RobotKinematics, q: np.ndarray, view, free: np.ndarray):
+    """The motion and static pinhole camera (q (F, nq), view) that see the mirror image of the fit
+    (q, ``view``) as that fit is seen, for a mirror-symmetric robot (:func:`_mirror_pose`); None for
+    another robot.
+
+    A fit in front of its camera: the mirror image turned to face the camera as the fit does (its depth
+    mirrored about the robot's mean depth), which projects as the fit does up to perspective's share:
+    under weak perspective exactly, the two sides of the mirror ambiguity. A start: refit it. A fit
+    behind its camera (which a pinhole projects as it projects the points' reflection through the
+    camera centre): the mirror image in front, an exact twin, camera ``-R S``, ``-t``.
+
+    Why: each weak start is fitted under a camera of its own, and a fit's perspective twin need not be
+    among them. The double pendulum through a pinhole (seed 0): the true motion 169.0 and its mirror
+    image 169.5 (squared residuals, px^2, noise variance 1.1): a tie, which the fit, reaching only the
+    mirror's basin, reported as settled."""
+    from .views import _PinholeView
+
+    qm = _mirror_pose(robot, q, free)
+    if qm is None:
+        return None
+    R, t = view.R[0], view.t[0]
+    depth = view.apply(robot.positions(q))[1][..., 2]
+    if np.median(depth) < 0:
+        R2, t2 = -R @ SYMMETRY_MIRROR, -t
+    else:
+        flip = np.diag([1.0, 1.0, -1.0])
+        R2, t2 = flip @ R @ SYMMETRY_MIRROR, flip @ t + [0.0, 0.0, 2 * float(np.median(depth))]
+    return qm, _PinholeView(R2[None], t2[None], view.f, view.c, view.cam_of, view.fit_focal)

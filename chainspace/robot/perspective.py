@@ -18,7 +18,8 @@ from .kinematics import RobotKinematics, _wrapped
 from .solver import _huber, _motion_prior, _noise_sigma, _normal_equations, _sequence_lm, _smooth_lm, \
     _smoothed_objective
 from .views import _PinholeView, _pinhole_from_weak
-from .candidates import _viterbi_reanchored
+from .candidates import _pinhole_twin, _viterbi_reanchored
+from .starts import _base_turns
 
 # a perspective fit must beat weak perspective's by this many noise variances (squared residuals, a
 # likelihood-ratio test, as for the ties of fit.py) to count as measured perspective
@@ -60,8 +61,14 @@ def _pnp_camera(x: np.ndarray, tracks: np.ndarray, w: np.ndarray, f: float, c: n
         return None
     K = np.array([[f, 0.0, c[0]], [0.0, f, c[1]], [0.0, 0.0, 1.0]])
     try:
+        # SQPnP: a global minimum in front of the camera; the iterative (DLT-started) solver lands on the
+        # twin behind it when the points are nearly coplanar (the double pendulum: 5 of 8 seeds, given the
+        # true points)
         ok, rv, tv = cv2.solvePnP(x[seen].astype(np.float64), tracks[seen].astype(np.float64), K, None,
-                                  flags=cv2.SOLVEPNP_ITERATIVE)
+                                  flags=cv2.SOLVEPNP_SQPNP)
+        if ok:
+            ok, rv, tv = cv2.solvePnP(x[seen].astype(np.float64), tracks[seen].astype(np.float64), K, None, rv, tv,
+                                      True, flags=cv2.SOLVEPNP_ITERATIVE)
     except cv2.error:
         return None
     if not ok or not (np.isfinite(rv).all() and np.isfinite(tv).all()):
@@ -183,6 +190,8 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
 
     # every start through the camera stage (the first over the focal guesses; the others reuse its focal),
     # then the weak fit's winner and the others of lowest cost there refined in full (MAX_STARTS in all)
+    # each start also turned about the first joint's axis: the weak camera's guess of how far round it stands
+    starts = list(starts) + [dict(st, q=q) for st in starts for q in _base_turns(robot, st["q"])]
     screened = [camera_start(starts[0], f_inits)]
     chosen_f = screened[0][3] if fit_focal else None
     screened += [camera_start(st, [chosen_f or f_inits[0]]) for st in starts[1:]]
@@ -199,12 +208,21 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
                 n_iter += it
         fits.append(finish(q, pv, st, n_iter))
     # a pinhole projects y and -y alike: a fit with the robot behind its camera (the true one's twin through
-    # the camera centre, mirrored about the robot's symmetry plane) fits exactly as well and is no camera
+    # the camera centre, mirrored about the robot's symmetry plane) fits exactly as well and is no camera;
+    # its mirror image in front is that twin (_pinhole_twin)
+    fits += [finish(*tw, r["start"], 0) for r in fits if not _in_front(r)
+             for tw in [_pinhole_twin(robot, r["q"], r["view"], r["free"])] if tw is not None]
     fits = [r for r in fits if _in_front(r)] or fits
     fits.sort(key=lambda r: r["objective"])
     grafted = _grafted(robot, fits[0], [st["q"] for st in starts] + [r["q"] for r in fits[1:]], tr, w)
     if grafted is not None:
         fits.append(finish(grafted, fits[0]["view"], fits[0]["start"], 0))
+        fits = [r for r in fits if _in_front(r)] or fits
+        fits.sort(key=lambda r: r["objective"])
+    # the winner's mirror image, facing the camera as it does: its perspective twin, which no start need reach
+    twin = _pinhole_twin(robot, fits[0]["q"], fits[0]["view"], fits[0]["free"])
+    if twin is not None:
+        fits.append(finish(*twin, fits[0]["start"], 0))
         fits = [r for r in fits if _in_front(r)] or fits
         fits.sort(key=lambda r: r["objective"])
     best = fits[0]
