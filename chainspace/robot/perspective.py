@@ -18,7 +18,7 @@ from .kinematics import RobotKinematics, _wrapped
 from .solver import _huber, _motion_prior, _noise_sigma, _normal_equations, _sequence_lm, _smooth_lm, \
     _smoothed_objective
 from .views import _PinholeView, _pinhole_from_weak
-from .candidates import _pinhole_twin, _viterbi_reanchored
+from .candidates import TIE_VARIANCES, _pinhole_twin, _same_motion, _viterbi_reanchored
 from .starts import _base_turns
 
 # a perspective fit must beat weak perspective's by this many noise variances (squared residuals, a
@@ -186,7 +186,11 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
                 cost = _robust(np.linalg.norm(pv.apply(robot.positions(q))[0] - np.nan_to_num(tr), axis=-1), w, delta)
                 if best_cam is None or cost < best_cam[0]:
                     best_cam = (cost, pv, q, f0)
-        return best_cam + (n_iter,)
+        cost, pv, q, f0 = best_cam
+        # a pinhole projects y and -y alike: a camera with the robot behind it is no camera, but the mirror
+        # image of its motion, in front, is an exact twin (_pinhole_twin; a mirror-symmetric robot)
+        twin = None if _in_front(dict(view=pv, pos=robot.positions(q))) else _pinhole_twin(robot, q, pv, st["free"])
+        return (cost, pv, q, f0, n_iter) if twin is None else (cost, twin[1], twin[0], f0, n_iter)
 
     # every start through the camera stage (the first over the focal guesses; the others reuse its focal),
     # then the weak fit's winner and the others of lowest cost there refined in full (MAX_STARTS in all)
@@ -208,10 +212,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
                 n_iter += it
         fits.append(finish(q, pv, st, n_iter))
     # a pinhole projects y and -y alike: a fit with the robot behind its camera (the true one's twin through
-    # the camera centre, mirrored about the robot's symmetry plane) fits exactly as well and is no camera;
-    # its mirror image in front is that twin (_pinhole_twin)
-    fits += [finish(*tw, r["start"], 0) for r in fits if not _in_front(r)
-             for tw in [_pinhole_twin(robot, r["q"], r["view"], r["free"])] if tw is not None]
+    # the camera centre, mirrored about the robot's symmetry plane) fits exactly as well and is no camera
     fits = [r for r in fits if _in_front(r)] or fits
     fits.sort(key=lambda r: r["objective"])
     grafted = _grafted(robot, fits[0], [st["q"] for st in starts] + [r["q"] for r in fits[1:]], tr, w)
@@ -220,11 +221,16 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
         fits = [r for r in fits if _in_front(r)] or fits
         fits.sort(key=lambda r: r["objective"])
     # the winner's mirror image, facing the camera as it does: its perspective twin, which no start need reach
+    # (refitted in full only when a plain fit of it ties with the winner's: a big robot's twin is far off)
     twin = _pinhole_twin(robot, fits[0]["q"], fits[0]["view"], fits[0]["free"])
-    if twin is not None:
-        fits.append(finish(*twin, fits[0]["start"], 0))
-        fits = [r for r in fits if _in_front(r)] or fits
-        fits.sort(key=lambda r: r["objective"])
+    if twin is not None and not any(_same_motion(robot, twin[0], r["q"]) for r in fits):
+        lead, ones = fits[0], np.ones(twin[1].n_params, bool)
+        plain = _sequence_lm(robot, twin[0], tr, w, twin[1], lead["free"], ones, max_iter, tol, lead["delta"])
+        var0 = max(_noise_sigma(lead["rn"], w), lead["start"]["px_floor"]) ** 2
+        if _robust(plain[2], w, lead["delta"]) - _robust(lead["rn"], w, lead["delta"]) <= TIE_VARIANCES * var0:
+            fits.append(finish(plain[0], plain[1], lead["start"], plain[5]))
+            fits = [r for r in fits if _in_front(r)] or fits
+            fits.sort(key=lambda r: r["objective"])
     best = fits[0]
     var = max(best["sse"] / max(n_obs - 7, 1), 1e-12)
     others = [r for r in fits[1:] if np.abs(_wrapped(robot, r["q"] - best["q"])).max() > 0.05]
