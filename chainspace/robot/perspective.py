@@ -195,6 +195,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     # every start through the camera stage (the first over the focal guesses; the others reuse its focal),
     # then the weak fit's winner and the others of lowest cost there refined in full (MAX_STARTS in all)
     # each start also turned about the first joint's axis: the weak camera's guess of how far round it stands
+    given = [st["q"] for st in starts]
     starts = list(starts) + [dict(st, q=q) for st in starts for q in _base_turns(robot, st["q"])]
     screened = [camera_start(starts[0], f_inits)]
     chosen_f = screened[0][3] if fit_focal else None
@@ -215,7 +216,8 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     # the camera centre, mirrored about the robot's symmetry plane) fits exactly as well and is no camera
     fits = [r for r in fits if _in_front(r)] or fits
     fits.sort(key=lambda r: r["objective"])
-    grafted = _grafted(robot, fits[0], [st["q"] for st in starts] + [r["q"] for r in fits[1:]], tr, w)
+    # (the given starts only: a turned start's tails beyond the first joint are its original's)
+    grafted = _grafted(robot, fits[0], given + [r["q"] for r in fits[1:]], tr, w)
     if grafted is not None:
         fits.append(finish(grafted, fits[0]["view"], fits[0]["start"], 0))
         fits = [r for r in fits if _in_front(r)] or fits
