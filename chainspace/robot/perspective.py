@@ -200,7 +200,10 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     screened = [camera_start(starts[0], f_inits)]
     chosen_f = screened[0][3] if fit_focal else None
     screened += [camera_start(st, [chosen_f or f_inits[0]]) for st in starts[1:]]
-    keep = [0] + sorted(range(1, len(starts)), key=lambda k: screened[k][0])[:MAX_STARTS - 1]
+    # the turned starts compete for a slot of their own: on the xArm7 from below (full ranges, seed 0) one of
+    # lower camera-stage cost pushed the true basin's start out, and the fit ended 151 degrees off
+    by_cost = sorted(range(1, len(starts)), key=lambda k: screened[k][0])
+    keep = [0] + [k for k in by_cost if k < len(given)][:MAX_STARTS - 1] + [k for k in by_cost if k >= len(given)][:1]
     for k in keep:
         st, (_, pv, q, f0, n_iter) = starts[k], screened[k]
         none_free = np.zeros_like(st["free"])
