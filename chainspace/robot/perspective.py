@@ -1,10 +1,16 @@
 """The perspective refinement of a robot fit: one static pinhole camera (known intrinsics, or the
 focal length estimated) fitted with the joint angles on the reprojection error in pixels, started from
 the weak-perspective fit's winner and its mirror/flip alternatives (see :mod:`chainspace.robot.fit`),
-each camera from the weak camera's pose and, with K known, from PnP on the start's points
-(:func:`_pnp_camera`); every start goes through that camera stage, and the winner and the others that
-fit best there are refined in full (:data:`MAX_STARTS`); fits with points behind the camera are
-dropped (:func:`_in_front`).
+each also turned a quarter, a half and three quarters about the first joint's axis
+(:func:`chainspace.robot.starts._base_turns`: the weak camera's guess of how far round that axis it
+stands can be wrong), each camera from the weak camera's pose and, with K known, from PnP on the
+start's points (:func:`_pnp_camera`); every start goes through that camera stage (a camera stage that
+ends with the robot behind its camera continues from the exact mirror twin in front,
+:func:`chainspace.robot.candidates._pinhole_twin`), and the winner, the others that fit best there
+(:data:`MAX_STARTS`) and the best turned start are refined in full; fits with points behind the camera
+are dropped (:func:`_in_front`). The winner's mirror image, facing the camera as it does (its twin
+under weak perspective), is refitted too where a plain fit of it ties: a tie perspective may not
+settle, which no start need reach.
 Perspective then decides the depth mirrors the weak fit left open: under the winner's camera the
 other starts' branches beyond each joint are tried on the winner's arm (:func:`_grafted`). The
 winner's standard deviations and alternatives: :func:`_trust`.
