@@ -126,9 +126,9 @@ def test_the_perspective_fit_refines_the_weak_starts_that_fit_best_under_its_cam
     starts = [start(q) for q in off] + [start(trial.q)]
     refined: set[int] = set()
 
-    def in_front(r):  # every refined fit passes here: note which start it came from (a turned start keeps its view)
+    def in_front(r):  # every refined fit passes here: note which start it came from (or was turned from)
         if "start" in r:  # (a camera stage's check has none)
-            refined.add(next(k for k, s in enumerate(starts) if s["view"] is r["start"]["view"]))
+            refined.add(next(k for k, s in enumerate(starts) if s is r["start"].get("turn_of", r["start"])))
         return _in_front(r)
 
     monkeypatch.setattr(perspective, "_in_front", in_front)

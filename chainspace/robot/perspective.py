@@ -23,7 +23,7 @@ import numpy as np
 from .kinematics import RobotKinematics, _wrapped
 from .solver import _huber, _motion_prior, _noise_sigma, _normal_equations, _sequence_lm, _smooth_lm, \
     _smoothed_objective
-from .views import _PinholeView, _pinhole_from_weak
+from .views import _PinholeView, _camera_view, _pinhole_from_weak
 from .candidates import TIE_VARIANCES, _pinhole_twin, _same_motion, _viterbi_reanchored
 from .starts import _base_turns
 
@@ -178,8 +178,9 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
         none_free = np.zeros_like(st["free"])
         ones_k, n_iter, best_cam = np.ones(6, bool), 0, None
         for f0 in focals:
-            cams = [_pinhole_from_weak(st["view"], pos0, f0, c, False)]
-            cams += [] if fit_focal else [_pnp_camera(pos0, tr, w, f0, c)]
+            pnp = None if fit_focal else _pnp_camera(pos0, tr, w, f0, c)
+            # a turned start: PnP's camera alone where there is one (its weak camera is re-fitted, not measured)
+            cams = [pnp] if "turn_of" in st and pnp is not None else [_pinhole_from_weak(st["view"], pos0, f0, c, False), pnp]
             for pv in cams:
                 if pv is None:
                     continue
@@ -202,7 +203,8 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     # then the weak fit's winner and the others of lowest cost there refined in full (MAX_STARTS in all)
     # each start also turned about the first joint's axis: the weak camera's guess of how far round it stands
     given = [st["q"] for st in starts]
-    starts = list(starts) + [dict(st, q=q) for st in starts for q in _base_turns(robot, st["q"])]
+    starts = list(starts) + [dict(st, q=q, view=_camera_view(robot.positions(q), tr, w, False), turn_of=st)
+                             for st in starts for q in _base_turns(robot, st["q"])]
     screened = [camera_start(starts[0], f_inits)]
     chosen_f = screened[0][3] if fit_focal else None
     screened += [camera_start(st, [chosen_f or f_inits[0]]) for st in starts[1:]]
