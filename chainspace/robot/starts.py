@@ -245,8 +245,9 @@ def _base_turns(robot: RobotKinematics, q: np.ndarray,
 
     Why: the weak fit's camera is a guess of how far round that axis it stands, and from a wrong
     guess the perspective fit stays in a wrong basin. The double pendulum through a pinhole (seed 7,
-    0.3 m away): every weak start 40-170 degrees off on joint1 and the fit 91 degrees off, 5.6 px RMS
-    on 1 px tracks; the true motion's basin, 17 times lower, was reached from a quarter turn."""
+    0.3 m away): every weak start tens of degrees off on joint1 (one nearly half a turn), the fit 91
+    degrees off, 5.6 px RMS on 1 px tracks; the true motion's basin, its objective 17 times lower, was
+    reached from a quarter turn of one of them."""
     pos, jac = robot.jacobians(q[:1])
     moves = np.linalg.norm(jac[0], axis=1) > 1e-9  # (J, nv)
     moved = moves.any(1)
