@@ -180,7 +180,8 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
         for f0 in focals:
             pnp = None if fit_focal else _pnp_camera(pos0, tr, w, f0, c)
             # a turned start: PnP's camera alone where there is one (its weak camera is re-fitted, not measured)
-            cams = [pnp] if "turn_of" in st and pnp is not None else [_pinhole_from_weak(st["view"], pos0, f0, c, False), pnp]
+            cams = [pnp] if "turn_of" in st and pnp is not None else \
+                [_pinhole_from_weak(st["view"], pos0, f0, c, False), pnp]
             for pv in cams:
                 if pv is None:
                     continue
