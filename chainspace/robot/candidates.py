@@ -329,3 +329,36 @@ def _pinhole_twin(robot: RobotKinematics, q: np.ndarray, view, free: np.ndarray)
         flip = np.diag([1.0, 1.0, -1.0])
         R2, t2 = flip @ R @ SYMMETRY_MIRROR, flip @ t + [0.0, 0.0, 2 * float(np.median(depth))]
     return qm, _PinholeView(R2[None], t2[None], view.f, view.c, view.cam_of, view.fit_focal)
+
+
+def _turned_twins(robot: RobotKinematics, q: np.ndarray, view) -> list:
+    """The fit (q (F, nq), static pinhole ``view``) with its motion turned a quarter, a half and three
+    quarters about the first joint's axis (:func:`chainspace.robot.starts._base_turns`) and the camera
+    turned to match, so that every point the turn moves projects where it did: only the tracked points
+    of the base off that axis tell them apart. [(q, view)]; none where the turn moves no tracked point
+    the camera's turn does not imitate (the base's points on the axis: the joint is seen relative to
+    frame 0, and the turn is the same motion).
+
+    Why: joint1's offset against the camera's turn about its axis is seen through the base alone. The
+    double pendulum through a pinhole (seed 13, its base point 0.035 m off the axis): the fit half a
+    turn off on joint1 at objective 142.8, the true motion's mirror image 150.1 (noise variance about
+    1.1), a tie no start reached, reported as settled."""
+    from .starts import _base_turns
+    from .views import _PinholeView, similarity_align
+
+    pos = robot.positions(q)
+    out = []
+    for qt in _base_turns(robot, q):
+        pt = robot.positions(qt)
+        moved = np.linalg.norm(pt - pos, axis=-1) > 1e-9 * robot.reach()  # (F, J)
+        if not moved.any():
+            continue
+        _, A, b = similarity_align(np.where(moved[..., None], pos, np.nan), np.where(moved[..., None], pt, np.nan),
+                                   scale=False)  # the turn, x_t = A x + b
+        R = view.R[0] @ A.T
+        t = view.t[0] - R @ b
+        v = _PinholeView(R[None], t[None], view.f, view.c, view.cam_of, view.fit_focal)
+        if np.abs(v.apply(pt)[0] - view.apply(pos)[0]).max() < 1e-6 * max(view.f, 1.0):
+            continue  # every tracked point where it was: the same motion up to the gauge
+        out.append((qt, v))
+    return out

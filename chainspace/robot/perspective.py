@@ -24,7 +24,7 @@ from .kinematics import RobotKinematics, _wrapped
 from .solver import _huber, _motion_prior, _noise_sigma, _normal_equations, _sequence_lm, _smooth_lm, \
     _smoothed_objective
 from .views import _PinholeView, _camera_view, _pinhole_from_weak
-from .candidates import TIE_VARIANCES, _pinhole_twin, _same_motion, _viterbi_reanchored
+from .candidates import TIE_VARIANCES, _pinhole_twin, _same_motion, _turned_twins, _viterbi_reanchored
 from .starts import _base_turns
 
 # a perspective fit must beat weak perspective's by this many noise variances (squared residuals, a
@@ -234,17 +234,21 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
         fits.append(finish(grafted, fits[0]["view"], fits[0]["start"], 0))
         fits = [r for r in fits if _in_front(r)] or fits
         fits.sort(key=lambda r: r["objective"])
-    # the winner's mirror image, facing the camera as it does: its perspective twin, which no start need reach
-    # (refitted in full only when a plain fit of it ties with the winner's: a big robot's twin is far off)
-    twin = _pinhole_twin(robot, fits[0]["q"], fits[0]["view"], fits[0]["free"])
-    if twin is not None and not any(_same_motion(robot, twin[0], r["q"]) for r in fits):
-        lead, ones = fits[0], np.ones(twin[1].n_params, bool)
-        plain = _sequence_lm(robot, twin[0], tr, w, twin[1], lead["free"], ones, max_iter, tol, lead["delta"])
-        var0 = max(_noise_sigma(lead["rn"], w), lead["start"]["px_floor"]) ** 2
+    # the winner's mirror image, facing the camera as it does, and the winner turned about the first joint's
+    # axis with the camera turned to match: its twins, which no start need reach (each refitted in full only
+    # when a plain fit of it ties with the winner's: a big robot's mirror twin is far off)
+    lead = fits[0]
+    mirror = _pinhole_twin(robot, lead["q"], lead["view"], lead["free"])
+    var0 = max(_noise_sigma(lead["rn"], w), lead["start"]["px_floor"]) ** 2
+    for q_tw, v_tw in ([] if mirror is None else [mirror]) + _turned_twins(robot, lead["q"], lead["view"]):
+        if any(_same_motion(robot, q_tw, r["q"]) for r in fits):
+            continue
+        plain = _sequence_lm(robot, q_tw, tr, w, v_tw, lead["free"], np.ones(v_tw.n_params, bool), max_iter, tol,
+                             lead["delta"])
         if _robust(plain[2], w, lead["delta"]) - _robust(lead["rn"], w, lead["delta"]) <= TIE_VARIANCES * var0:
             fits.append(finish(plain[0], plain[1], lead["start"], plain[5]))
-            fits = [r for r in fits if _in_front(r)] or fits
-            fits.sort(key=lambda r: r["objective"])
+    fits = [r for r in fits if _in_front(r)] or fits
+    fits.sort(key=lambda r: r["objective"])
     best = fits[0]
     var = max(best["sse"] / max(n_obs - 7, 1), 1e-12)
     others = [r for r in fits[1:] if np.abs(_wrapped(robot, r["q"] - best["q"])).max() > 0.05]
