@@ -104,3 +104,21 @@ def test_the_perspective_fit_finds_the_true_motion_from_starts_a_half_turn_off(p
                                           30.0, None, np.zeros((F, robot.nv), bool), 50, 1e-8, 1e9, False)
     err = np.degrees(np.abs(robot.wrap_angles(robot.angles(best["q"]) - robot.angles(tr.q))))[:, 0]
     assert err.max() < 0.1 and best["sse"] < 1e-3
+
+
+def test_a_turn_about_the_first_axis_with_the_camera_turned_moves_only_the_base_in_the_image(pendulum):
+    from chainspace.robot.candidates import _turned_twins
+
+    chain, robot = pendulum
+    F = 6
+    tr = synthesize(chain, n_frames=F, noise_px=0.0, seed=13)
+    view = _view(tr.camera_R, tr.camera_t, tr.intrinsics.K, F)
+    seen = view.apply(tr.positions)[0]
+    twins = _turned_twins(robot, tr.q, view)
+    assert len(twins) == 3
+    base = np.linalg.norm(tr.positions - tr.positions[:1], axis=-1).max(0) < 1e-9  # points no joint moves
+    on_axis = np.linalg.norm(tr.positions[:, :, 1:] - tr.positions[:, 1:2, 1:], axis=-1).max(0) < 1e-9  # joint1 is x
+    for q_t, v_t in twins:
+        shown = v_t.apply(robot.positions(q_t))[0]
+        assert np.abs(shown[:, ~base | on_axis] - seen[:, ~base | on_axis]).max() < 1e-6  # the moving point, the pivot
+        assert np.linalg.norm(shown[:, base & ~on_axis] - seen[:, base & ~on_axis], axis=-1).min() > 1.0  # the base
