@@ -9,8 +9,10 @@ ends with the robot behind its camera continues from the exact mirror twin in fr
 :func:`chainspace.robot.candidates._pinhole_twin`), and the winner, the others that fit best there
 (:data:`MAX_STARTS`) and the best turned start are refined in full; fits with points behind the camera
 are dropped (:func:`_in_front`). The winner's mirror image, facing the camera as it does (its twin
-under weak perspective), is refitted too where a plain fit of it ties: a tie perspective may not
-settle, which no start need reach.
+under weak perspective), and the winner turned about the first joint's axis with the camera turned to
+match (:func:`chainspace.robot.candidates._turned_twins`: only the base's points off that axis tell
+them apart) are refitted too where a plain fit of them ties: ties perspective may not settle, which no
+start need reach.
 Perspective then decides the depth mirrors the weak fit left open: under the winner's camera the
 other starts' branches beyond each joint are tried on the winner's arm (:func:`_grafted`). The
 winner's standard deviations and alternatives: :func:`_trust`.
