@@ -1,0 +1,173 @@
+"""A start for the perspective fit that owes nothing to weak perspective: the static pinhole camera
+searched on a few frames, then every frame's joints by IK under it (:func:`pinhole_start`).
+
+Why: the perspective fit (:mod:`chainspace.robot.perspective`) starts from the weak-perspective fit's
+motions, and a robot close to a wide lens is far from weak perspective. The milling arm with its
+nearest point 0.3 m from a 90-degree lens (300 frames, 1 px noise, seed 0): every weak start was 30-130
+degrees off per joint, and the perspective fit from them ended at a robust objective of 7.5e7 px^2,
+missing every point by 56-136 px, where a fit started from the true motion ends at 4,381 (joints
+0.04-0.33 degrees off). The camera is static and the URDF fixes the robot's scale, so one camera pose
+serves every frame: it is found as :func:`chainspace.robot.starts._initial_camera` finds the weak one
+(rotations spread over SO(3), IK on a few frames under each, the camera refitted to the IK's points),
+in full perspective, with OpenCV's PnP as the refit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .kinematics import RobotKinematics, _held_q, _random_q, _seeded
+from .solver import _sequence_lm
+from .starts import _rotation_candidates, _sequential_ik
+from .uncertainty import track_jitter
+from .views import _PinholeView
+
+# the search's frames (spread over the sequence) and rounds of IK and camera refits; depths of the
+# robot's root tried per rotation, as multiples of the depth its image size suggests (f / px per metre,
+# which a robot reaching towards the lens makes too small)
+SEARCH_FRAMES = 6
+DEPTH_FACTORS = (1.0, 2.0, 4.0)
+# candidate cameras of the search fitted with the joints of its frames (camera free), the IK's random
+# seeds per frame, and the Huber threshold of that fit as a fraction of the tracks' extent
+N_REFINED = 8
+N_RANDOM_SEEDS = 8
+HUBER_EXTENT = 0.01
+
+
+@dataclass
+class _PinholeCandidates(_PinholeView):
+    """Several pinhole cameras of one K held fixed for the solvers: frame f (a candidate's copy of a
+    search frame) is seen by camera ``cam_of[f]`` (R (C, 3, 3), t (C, 3)). Only the point Jacobian is
+    given: the solvers move the joints alone."""
+
+    def apply(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        y = np.einsum("fij,fkj->fki", self.R[self.cam_of], x) + self.t[self.cam_of][:, None]
+        z = np.where(np.abs(y[..., 2:]) > 1e-9, y[..., 2:], 1e-9)
+        return self.f * y[..., :2] / z + self.c, y
+
+    def derivatives(self, y: np.ndarray) -> tuple[np.ndarray, None]:
+        z = np.where(np.abs(y[..., 2]) > 1e-9, y[..., 2], 1e-9)
+        a = self.f / z
+        P = np.zeros(y.shape[:-1] + (2, 3))
+        P[..., 0, 0] = P[..., 1, 1] = a
+        P[..., :, 2] = -a[..., None] * y[..., :2] / z[..., None]
+        return P @ self.R[self.cam_of][:, None], None
+
+    @property
+    def S(self) -> np.ndarray:
+        return np.ones(len(self.R))
+
+    def take(self, idx: np.ndarray) -> "_PinholeCandidates":
+        return _PinholeCandidates(self.R, self.t, self.f, self.c, self.cam_of[idx])
+
+    def put(self, idx, sub, accept) -> "_PinholeCandidates":
+        return self  # held: nothing of the cameras moves
+
+
+def _cost(rn: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Per candidate (rows of rn (C, n_f, J)) the median over its frames of the mean squared residual:
+    a frame that IK left on a poor branch does not sink a right camera."""
+    return np.median((w * rn ** 2).sum(-1) / np.maximum(w.sum(-1), 1e-300), axis=-1)
+
+
+def _multi_seed_ik(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, view: _PinholeView,
+                   free: np.ndarray, n_random: int = N_RANDOM_SEEDS) -> tuple[np.ndarray, np.ndarray]:
+    """Each frame's joint angles under the held camera ``view``, from the rest pose, the solver's two
+    seeds and ``n_random`` random poses (held directions at rest), the best of them per frame: (q (F,
+    nq), squared residuals per frame (F,)). One batched solve.
+
+    Why many seeds: at close range one seed's IK stops in a wrong local minimum in many frames even
+    under the true camera (the milling arm, 300 frames: 169 frames missed from the rest pose's side
+    warm-started along the sequence, 37 with 11 seeds)."""
+    F = len(tracks)
+    seeds = np.concatenate([robot.q_rest[None], robot.q_seed[None], robot.q_seed_other[None],
+                            _random_q(robot, np.random.default_rng(0), n_random)])
+    S = len(seeds)
+    idx = np.repeat(np.arange(F), S)
+    q = np.where(_held_q(robot, free[idx]), robot.q_rest, np.tile(seeds, (F, 1)))
+    many = _PinholeView(view.R, view.t, view.f, view.c, np.zeros(len(idx), int))
+    q, _, rn, _, _, _ = _sequence_lm(robot, q, tracks[idx], w[idx], many, free[idx], np.zeros(6, bool), 30, 1e-6,
+                                     None)
+    err = (w[idx] * rn ** 2).sum(1).reshape(F, S)
+    pick = err.argmin(1)
+    return q.reshape(F, S, -1)[np.arange(F), pick], err[np.arange(F), pick]
+
+
+def search_camera(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, free: np.ndarray,
+                  K: np.ndarray, frames: np.ndarray) -> tuple[float, _PinholeView, np.ndarray] | None:
+    """The static pinhole camera (known K (3, 3), square pixels) that best explains the tracks (F, J, 2)
+    of ``frames``, with their joint angles: (median over the frames of the mean squared residual px^2,
+    camera, q (len(frames), nq)); None when no candidate sees every point in front of it.
+
+    Rotations spread over SO(3) (:func:`chainspace.robot.starts._rotation_candidates`), each with the
+    robot's root on its track at :data:`DEPTH_FACTORS` times the depth its image size suggests, ranked
+    by IK on the frames from one seed (all candidates in one batched solve); the :data:`N_REFINED`
+    best then get IK from many seeds (:func:`_multi_seed_ik`) and the camera is fitted with the joints
+    (robust loss: a frame left on a wrong branch does not pull the camera off). The grid's spacing
+    (about 30 degrees) is within that fit's reach: the milling arm at close range, from the true
+    camera turned 30 degrees about random axes, returned to it in 6 of 6 trials."""
+    f, c = float(K[0, 0]), K[:2, 2]
+    x_rest = robot.positions(robot.q_rest)[0]
+    seen = w > 0
+    links = [(robot.chain.joint_index(a), robot.chain.joint_index(b)) for a, b in robot.chain.links]
+    L = np.array([np.linalg.norm(x_rest[b] - x_rest[a]) for a, b in links])
+    ratio = [np.median(np.linalg.norm(tracks[:, b] - tracks[:, a], axis=-1)[seen[:, a] & seen[:, b]]) / l
+             for (a, b), l in zip(links, L) if l > 1e-2 * L.max() and (seen[:, a] & seen[:, b]).sum() > 3]
+    s = float(np.median(ratio)) if ratio else f  # px per metre
+    r = robot.chain.joint_index(robot.chain.root)
+    root_u = np.median(tracks[seen[:, r], r], axis=0) if seen[:, r].any() else c
+    ray = np.append((root_u - c) / f, 1.0)
+    rots = _rotation_candidates(24, 4)
+    Rs = np.concatenate([rots] * len(DEPTH_FACTORS))
+    depth = np.repeat(np.array(DEPTH_FACTORS) * f / s, len(rots))
+    ts = depth[:, None] * ray - Rs @ x_rest[r]
+    n_c, n_f = len(Rs), len(frames)
+    idx = np.tile(frames, n_c)
+    uz = np.nan_to_num(tracks)
+    q = _seeded(robot, np.broadcast_to(robot.q_rest, (len(idx), robot.nq)), free[idx])
+    cams = _PinholeCandidates(Rs, ts, f, c, np.repeat(np.arange(n_c), n_f))
+    rn = _sequence_lm(robot, q, uz[idx], w[idx], cams, free[idx], np.zeros(6, bool), 30, 1e-6, None)[2]
+    cost = _cost(rn.reshape(n_c, n_f, -1), w[frames][None])
+    extent = float(max(np.ptp(uz[..., 0][seen]), np.ptp(uz[..., 1][seen])))
+    # a candidate whose frames fit to within twice the tracks' jitter (per coordinate) ends the search
+    jitter = track_jitter(tracks, w)
+    enough = 2 * (2 * jitter) ** 2 if np.isfinite(jitter) else 0.0
+    best = None
+    for j in np.argsort(cost)[:N_REFINED]:
+        view = _PinholeView(Rs[j][None].copy(), ts[j][None].copy(), f, c, np.zeros(n_f, int))
+        qj = _multi_seed_ik(robot, uz[frames], w[frames], view, free[frames])[0]
+        qj, view, rnj, _, _, _ = _sequence_lm(robot, qj, uz[frames], w[frames], view, free[frames], np.ones(6, bool),
+                                              100, 1e-10, HUBER_EXTENT * extent)
+        cj = float(_cost(rnj[None], w[frames][None])[0])
+        if view.apply(robot.positions(qj))[1][..., 2].min() > 0 and (best is None or cj < best[0]):
+            best = (cj, view, qj)
+            if cj <= enough:
+                break
+    return best
+
+
+def pinhole_start(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, free: np.ndarray,
+                  gauge: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, _PinholeView] | None:
+    """A perspective start from the tracks alone: the camera of :func:`search_camera` on
+    :data:`SEARCH_FRAMES` frames spread over the sequence, then every frame's joints under it: IK along
+    the sequence warm-started from the previous frames, and where a frame's IK from many seeds
+    (:func:`_multi_seed_ik`) fits clearly better, that (:func:`chainspace.robot.starts._sequential_ik`).
+    Returns (q (F, nq), the camera of all F frames), or None when no candidate camera sees the robot in
+    front of it.
+
+    tracks (F, J, 2) undistorted, in square pixels (K's fx for both axes); free (F, nv) the directions
+    each frame may move; gauge (nv,) the joints a static camera sees only relative to frame 0."""
+    F = len(tracks)
+    good = np.flatnonzero((w > 0).sum(1) >= 3)
+    if len(good) < 2:
+        return None
+    frames = good[np.unique(np.linspace(0, len(good) - 1, SEARCH_FRAMES).round().astype(int))]
+    found = search_camera(robot, tracks, w, free, K, frames)
+    if found is None:
+        return None
+    view = _PinholeView(found[1].R, found[1].t, found[1].f, found[1].c, np.zeros(F, int))
+    uz = np.nan_to_num(tracks)
+    q_alt = _multi_seed_ik(robot, uz, w, view, free)[0]
+    return _sequential_ik(robot, uz, w, view, free, q_alt[0], gauge, q_alt=q_alt), view
