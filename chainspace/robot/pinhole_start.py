@@ -33,6 +33,12 @@ DEPTH_FACTORS = (1.0, 2.0, 4.0)
 # seeds per frame, and the Huber threshold of that fit as a fraction of the tracks' extent
 N_REFINED = 8
 N_RANDOM_SEEDS = 8
+# a frame whose best squared residuals exceed this many times what the noise allows gets RETRY_SEEDS more
+RETRY_ABOVE_NOISE = 5.0
+RETRY_SEEDS = 96
+# a joint step between frames that costs as much as a noise variance of squared residuals in the
+# choice of a continuous path (:func:`_smooth_path`): a wrist's twin (half a turn) costs about 4,000
+PATH_STEP_RAD = 0.05
 HUBER_EXTENT = 0.01
 
 
@@ -73,26 +79,83 @@ def _cost(rn: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 def _multi_seed_ik(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, view: _PinholeView,
-                   free: np.ndarray, n_random: int = N_RANDOM_SEEDS) -> tuple[np.ndarray, np.ndarray]:
-    """Each frame's joint angles under the held camera ``view``, from the rest pose, the solver's two
-    seeds and ``n_random`` random poses (held directions at rest), the best of them per frame: (q (F,
-    nq), squared residuals per frame (F,)). One batched solve.
+                   free: np.ndarray, n_random: int = N_RANDOM_SEEDS, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Each frame's joint angles under the held camera ``view`` from the rest pose, the solver's two
+    seeds and ``n_random`` random poses (held directions at rest): (q (F, S, nq), squared residuals
+    (F, S)) of every seed. One batched solve.
 
     Why many seeds: at close range one seed's IK stops in a wrong local minimum in many frames even
     under the true camera (the milling arm, 300 frames: 169 frames missed from the rest pose's side
-    warm-started along the sequence, 37 with 11 seeds)."""
+    warm-started along the sequence, 37 with the best of 11 seeds)."""
     F = len(tracks)
     seeds = np.concatenate([robot.q_rest[None], robot.q_seed[None], robot.q_seed_other[None],
-                            _random_q(robot, np.random.default_rng(0), n_random)])
+                            _random_q(robot, np.random.default_rng(seed), n_random)])
     S = len(seeds)
     idx = np.repeat(np.arange(F), S)
     q = np.where(_held_q(robot, free[idx]), robot.q_rest, np.tile(seeds, (F, 1)))
     many = _PinholeView(view.R, view.t, view.f, view.c, np.zeros(len(idx), int))
     q, _, rn, _, _, _ = _sequence_lm(robot, q, tracks[idx], w[idx], many, free[idx], np.zeros(6, bool), 30, 1e-6,
                                      None)
-    err = (w[idx] * rn ** 2).sum(1).reshape(F, S)
-    pick = err.argmin(1)
-    return q.reshape(F, S, -1)[np.arange(F), pick], err[np.arange(F), pick]
+    return q.reshape(F, S, -1), (w[idx] * rn ** 2).sum(1).reshape(F, S)
+
+
+def _best_of(q: np.ndarray, err: np.ndarray) -> np.ndarray:
+    """Per frame the solution of lowest error: q (F, S, nq), err (F, S) -> (F, nq)."""
+    return q[np.arange(len(q)), err.argmin(1)]
+
+
+def _smooth_path(robot: RobotKinematics, q: np.ndarray, err: np.ndarray, sigma2: float) -> np.ndarray:
+    """The path through each frame's IK solutions q (F, S, nq) (squared residuals err (F, S)) that
+    minimises err / sigma2 plus (joint step / :data:`PATH_STEP_RAD`)^2 summed over the frames
+    (dynamic programming): (F, nq).
+
+    Why: seeds end on either of a wrist's exact twins (every tracked point in the same place) at
+    random, and a path that jumps between them frame to frame is no start for the smoothed fit."""
+    F, S, _ = q.shape
+    a = robot.angles(q.reshape(F * S, -1)).reshape(F, S, -1)
+    unary = err / max(sigma2, 1e-12)
+    total, back = unary[0], np.zeros((F, S), int)
+    for f in range(1, F):
+        step = (robot.wrap_angles(a[f][None, :] - a[f - 1][:, None]) ** 2).sum(-1) / PATH_STEP_RAD ** 2
+        cand = total[:, None] + step  # (previous, current)
+        back[f] = cand.argmin(0)
+        total = cand.min(0) + unary[f]
+    pick = np.empty(F, int)
+    pick[-1] = int(total.argmin())
+    for f in range(F - 1, 0, -1):
+        pick[f - 1] = back[f, pick[f]]
+    return q[np.arange(F), pick]
+
+
+def _bridged(robot: RobotKinematics, q: np.ndarray, tracks: np.ndarray, w: np.ndarray, view: _PinholeView,
+             free: np.ndarray, poor: float) -> np.ndarray:
+    """The path q (F, nq) with each run of poorly fitted frames (squared residuals above ``poor`` per
+    seen point) refitted from the straight line (in joint angles) between the well fitted frames on
+    either side, where that fits better.
+
+    Why: the seeds that fit such frames can end on the other of a wrist's exact twins than the path
+    around them, and the continuous path then keeps a poor fit there (the milling arm at close range:
+    frames 164-177 at 100 times the noise, fitted by seeds on the other twin); from the line between
+    its neighbours IK finds the fit on the path's own branch."""
+    rn = np.linalg.norm(view.apply(robot.positions(q))[0] - tracks, axis=-1)
+    bad = (w * rn ** 2).sum(1) > poor * np.maximum((w > 0).sum(1), 1)
+    good = np.flatnonzero(~bad)
+    if not bad.any() or not len(good):
+        return q
+    a = robot.angles(q)
+    idx = np.flatnonzero(bad)
+    before = good[np.clip(np.searchsorted(good, idx) - 1, 0, None)]
+    after = good[np.clip(np.searchsorted(good, idx), None, len(good) - 1)]
+    span = np.where(after > before, after - before, 1)
+    frac = np.clip((idx - before) / span, 0, 1)[:, None]
+    line = a[before] + frac * robot.wrap_angles(a[after] - a[before])
+    q0 = np.where(_held_q(robot, free[idx]), q[idx], robot.from_angles(line))
+    q1, _, rn1, _, _, _ = _sequence_lm(robot, q0, tracks[idx], w[idx], view.take(idx), free[idx], np.zeros(6, bool),
+                                       30, 1e-6, None)
+    better = (w[idx] * rn1 ** 2).sum(1) < (w[idx] * rn[idx] ** 2).sum(1)
+    out = q.copy()
+    out[idx[better]] = q1[better]
+    return out
 
 
 def search_camera(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, free: np.ndarray,
@@ -137,7 +200,7 @@ def search_camera(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, fre
     best = None
     for j in np.argsort(cost)[:N_REFINED]:
         view = _PinholeView(Rs[j][None].copy(), ts[j][None].copy(), f, c, np.zeros(n_f, int))
-        qj = _multi_seed_ik(robot, uz[frames], w[frames], view, free[frames])[0]
+        qj = _best_of(*_multi_seed_ik(robot, uz[frames], w[frames], view, free[frames]))
         qj, view, rnj, _, _, _ = _sequence_lm(robot, qj, uz[frames], w[frames], view, free[frames], np.ones(6, bool),
                                               100, 1e-10, HUBER_EXTENT * extent)
         cj = float(_cost(rnj[None], w[frames][None])[0])
@@ -151,10 +214,10 @@ def search_camera(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, fre
 def pinhole_start(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, free: np.ndarray,
                   gauge: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, _PinholeView] | None:
     """A perspective start from the tracks alone: the camera of :func:`search_camera` on
-    :data:`SEARCH_FRAMES` frames spread over the sequence, then every frame's joints under it: IK along
-    the sequence warm-started from the previous frames, and where a frame's IK from many seeds
-    (:func:`_multi_seed_ik`) fits clearly better, that (:func:`chainspace.robot.starts._sequential_ik`).
-    Returns (q (F, nq), the camera of all F frames), or None when no candidate camera sees the robot in
+    :data:`SEARCH_FRAMES` frames spread over the sequence, then every frame's joints under it: IK from
+    many seeds (:func:`_multi_seed_ik`) and along the sequence warm-started from the previous frames
+    (:func:`chainspace.robot.starts._sequential_ik`), joined into one continuous path
+    (:func:`_smooth_path`, noise from :func:`chainspace.robot.uncertainty.track_jitter`). Returns (q (F, nq), the camera of all F frames), or None when no candidate camera sees the robot in
     front of it.
 
     tracks (F, J, 2) undistorted, in square pixels (K's fx for both axes); free (F, nv) the directions
@@ -169,5 +232,21 @@ def pinhole_start(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, fre
         return None
     view = _PinholeView(found[1].R, found[1].t, found[1].f, found[1].c, np.zeros(F, int))
     uz = np.nan_to_num(tracks)
-    q_alt = _multi_seed_ik(robot, uz, w, view, free)[0]
-    return _sequential_ik(robot, uz, w, view, free, q_alt[0], gauge, q_alt=q_alt), view
+    qs, err = _multi_seed_ik(robot, uz, w, view, free)
+    jitter = track_jitter(tracks, w)
+    sigma2 = (jitter if np.isfinite(jitter) else 1.0) ** 2
+    # frames that no seed fits get many more seeds (the milling arm at close range: 20 frames at
+    # 100 times the noise with 11 seeds, at the noise with 103), their best kept in place of the first
+    bad = np.flatnonzero(err.min(1) > RETRY_ABOVE_NOISE * 2 * sigma2 * np.maximum((w > 0).sum(1), 1))
+    if len(bad):
+        more_q, more_err = _multi_seed_ik(robot, uz[bad], w[bad], view.take(bad), free[bad], RETRY_SEEDS, seed=1)
+        keep = np.argsort(more_err, axis=1)[:, : err.shape[1]]
+        qs[bad] = np.take_along_axis(more_q, keep[..., None], 1)
+        err[bad] = np.take_along_axis(more_err, keep, 1)
+    # with the path warm-started along the sequence as one more solution per frame
+    q_warm = _sequential_ik(robot, uz, w, view, free, _best_of(qs, err)[0], gauge)
+    rn = np.linalg.norm(view.apply(robot.positions(q_warm))[0] - uz, axis=-1)
+    qs = np.concatenate([qs, q_warm[:, None]], 1)
+    err = np.concatenate([err, (w * rn ** 2).sum(1)[:, None]], 1)
+    q = _smooth_path(robot, qs, err, 2 * sigma2)
+    return _bridged(robot, q, uz, w, view, free, RETRY_ABOVE_NOISE * 2 * sigma2), view
