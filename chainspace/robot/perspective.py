@@ -82,17 +82,20 @@ def _searched_start(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: n
     """A start owing nothing to weak perspective (:func:`chainspace.robot.pinhole_start.pinhole_start`:
     the camera searched on a few frames, every frame's joints by IK under it), when the best fit from
     the weak starts leaves squared residuals above :data:`SEARCH_ABOVE_NOISE` times what the tracks' own
-    jitter (:func:`chainspace.robot.uncertainty.track_jitter`) allows; else None. With the focal
-    unknown the search uses the best fit's. Returns (q (F, nq), camera) for the refinement.
+    jitter (:func:`chainspace.robot.uncertainty.track_jitter`; on exact tracks, a twentieth of the weak
+    fit's image-size tolerance ``px_floor``) allows; else None. With the focal unknown the search uses
+    the best fit's. Returns (q (F, nq), camera) for the refinement.
 
     Why only then: where the weak starts serve (far views) the fit is at the noise already, and the
-    search costs a few seconds (the milling arm, 300 frames: 8 s of CPU against 211 s for the
+    search costs seconds (the milling arm at close range, 300 frames: 12 s of CPU against 211 s for the
     perspective refinement of the weak starts)."""
     from .pinhole_start import pinhole_start
     from .uncertainty import track_jitter
 
     jitter = track_jitter(tracks, w)
-    if not np.isfinite(jitter) or best["sse"] <= SEARCH_ABOVE_NOISE * n_obs * max(jitter, 1e-3) ** 2:
+    # exact tracks: a twentieth of the weak fit's image-size tolerance, as its ties have it
+    noise = max(jitter, 0.05 * st["px_floor"])
+    if not np.isfinite(jitter) or best["sse"] <= SEARCH_ABOVE_NOISE * n_obs * noise ** 2:
         return None
     view = best["view"]
     found = pinhole_start(robot, tracks, w, st["free"], st["gauge"], view.K if K is None else K)
