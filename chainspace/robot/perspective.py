@@ -87,7 +87,7 @@ def _searched_start(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: n
     the best fit's. Returns (q (F, nq), camera) for the refinement.
 
     Why only then: where the weak starts serve (far views) the fit is at the noise already, and the
-    search costs seconds (the milling arm at close range, 300 frames: 12 s of CPU against 211 s for the
+    search costs seconds (the milling arm at close range, 300 frames: 9-12 s of CPU against 211 s for the
     perspective refinement of the weak starts)."""
     from .pinhole_start import pinhole_start
     from .uncertainty import track_jitter
