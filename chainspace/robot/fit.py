@@ -107,7 +107,10 @@ Perspective settles the depth mirror: a motion and its mirror image no longer pr
 the perspective fit starts from the weak fit's winner *and* its distinct alternatives (mirror images,
 the reflection about the symmetry plane): each through the camera stage, the winner and the two
 others that fit best there refined in full (``perspective.MAX_STARTS``), and the lowest perspective
-objective wins.
+objective wins. Where the best of them leaves squared residuals above twice what the tracks' own
+jitter allows (a robot close to a wide lens, whose weak starts are tens of degrees off), one more start
+competes: the camera searched in full perspective on a few frames and every frame's joints by IK under
+it (:mod:`chainspace.robot.pinhole_start`).
 The camera-side rule (``view_from``) and the rest-pose rule then decide nothing; ``message`` says
 whether the choice was clear (the objectives more than 25 noise variances apart) or a guess. The
 joints seen only relative to frame 0, and the face-on planes of a wrist, are as above (a turn about
