@@ -25,7 +25,7 @@ from .kinematics import RobotKinematics, _held_q, _random_q, _seeded
 from .solver import _sequence_lm
 from .starts import _rotation_candidates, _sequential_ik
 from .uncertainty import track_jitter
-from .views import _PinholeView
+from .views import _PinholeView, _pinhole_pixels, _pinhole_pixels_by_point
 
 # the search's frames (spread over the sequence); depths of the robot's root tried per rotation, as multiples of the depth its image size suggests (f / px per metre,
 # which a robot reaching towards the lens makes too small)
@@ -52,25 +52,19 @@ class _PinholeCandidates(_PinholeView):
 
     def apply(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         y = np.einsum("fij,fkj->fki", self.R[self.cam_of], x) + self.t[self.cam_of][:, None]
-        z = np.where(np.abs(y[..., 2:]) > 1e-9, y[..., 2:], 1e-9)
-        return self.f * y[..., :2] / z + self.c, y
+        return _pinhole_pixels(self.f, self.c, y), y
 
     def derivatives(self, y: np.ndarray) -> tuple[np.ndarray, None]:
-        z = np.where(np.abs(y[..., 2]) > 1e-9, y[..., 2], 1e-9)
-        a = self.f / z
-        P = np.zeros(y.shape[:-1] + (2, 3))
-        P[..., 0, 0] = P[..., 1, 1] = a
-        P[..., :, 2] = -a[..., None] * y[..., :2] / z[..., None]
-        return P @ self.R[self.cam_of][:, None], None
+        return _pinhole_pixels_by_point(self.f, y) @ self.R[self.cam_of][:, None], None
 
     @property
     def S(self) -> np.ndarray:
         return np.ones(len(self.R))
 
-    def take(self, idx: np.ndarray) -> "_PinholeCandidates":
+    def take(self, idx: np.ndarray) -> _PinholeCandidates:
         return _PinholeCandidates(self.R, self.t, self.f, self.c, self.cam_of[idx])
 
-    def put(self, idx, sub, accept) -> "_PinholeCandidates":
+    def put(self, idx, sub, accept) -> _PinholeCandidates:
         return self  # held: nothing of the cameras moves
 
 

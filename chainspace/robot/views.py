@@ -173,6 +173,24 @@ def _looks_down(view: _View) -> float:
 
 
 @dataclass
+def _pinhole_pixels(f: float, c: np.ndarray | float, y: np.ndarray) -> np.ndarray:
+    """Pixels (..., 2) of camera-frame points y (..., 3) in metres: f (y_x, y_y) / y_z + c (a depth
+    within a nanometre of 0 is held there: the solvers' steps stay finite)."""
+    z = np.where(np.abs(y[..., 2:]) > 1e-9, y[..., 2:], 1e-9)
+    return f * y[..., :2] / z + c
+
+
+def _pinhole_pixels_by_point(f: float, y: np.ndarray) -> np.ndarray:
+    """d pixels / d camera-frame point (..., 2, 3), px per metre, at points y (..., 3)."""
+    z = np.where(np.abs(y[..., 2]) > 1e-9, y[..., 2], 1e-9)
+    a = f / z
+    P = np.zeros(y.shape[:-1] + (2, 3))
+    P[..., 0, 0] = a
+    P[..., 1, 1] = a
+    P[..., :, 2] = -a[..., None] * y[..., :2] / z[..., None]
+    return P
+
+
 class _PinholeView:
     """One static pinhole camera: ``u = f (y_x, y_y) / y_z + c`` with ``y = R x + t`` (camera frame,
     metres; x in the robot's base frame). Same interface as :class:`_View` for the solvers; its step
@@ -199,22 +217,16 @@ class _PinholeView:
     def apply(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(prediction (F, J, 2) px, camera-frame points y = R x + t (F, J, 3))."""
         y = np.einsum("ij,fkj->fki", self.R[0], x) + self.t[0]
-        z = np.where(np.abs(y[..., 2:]) > 1e-9, y[..., 2:], 1e-9)
-        return self.f * y[..., :2] / z + self.c, y
+        return _pinhole_pixels(self.f, self.c, y), y
 
     def derivatives(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """d prediction / d point (F, J, 2, 3) and / d view parameters (F, J, 2, n_params)."""
-        z = np.where(np.abs(y[..., 2]) > 1e-9, y[..., 2], 1e-9)
-        a = self.f / z
-        P = np.zeros(y.shape[:-1] + (2, 3))  # d u / d y
-        P[..., 0, 0] = a
-        P[..., 1, 1] = a
-        P[..., :, 2] = -a[..., None] * y[..., :2] / z[..., None]
+        P = _pinhole_pixels_by_point(self.f, y)
         dx = P @ self.R[0]
         dw = P @ -_skew(y - self.t[0])  # d y / d w = -[R x]^
         parts = [dw, P]
         if self.fit_focal:
-            parts.append((self.f * y[..., :2] / z[..., None])[..., None])
+            parts.append(_pinhole_pixels(self.f, 0.0, y)[..., None])  # d u / d log f
         return dx, np.concatenate(parts, -1)
 
     def moved(self, dc: np.ndarray) -> "_PinholeView":
