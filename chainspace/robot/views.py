@@ -172,7 +172,6 @@ def _looks_down(view: _View) -> float:
     return -float(np.mean(view.R[:, 2, 2]))
 
 
-@dataclass
 def _pinhole_pixels(f: float, c: np.ndarray | float, y: np.ndarray) -> np.ndarray:
     """Pixels (..., 2) of camera-frame points y (..., 3) in metres: f (y_x, y_y) / y_z + c (a depth
     within a nanometre of 0 is held there: the solvers' steps stay finite)."""
@@ -191,6 +190,7 @@ def _pinhole_pixels_by_point(f: float, y: np.ndarray) -> np.ndarray:
     return P
 
 
+@dataclass
 class _PinholeView:
     """One static pinhole camera: ``u = f (y_x, y_y) / y_z + c`` with ``y = R x + t`` (camera frame,
     metres; x in the robot's base frame). Same interface as :class:`_View` for the solvers; its step
