@@ -357,23 +357,24 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     poor &= ~blind
     uncertain, spread = uncertain_joints(robot, std, ~blind)
     unit = np.where(robot.prismatic_v, "mm", "deg")
+    # (no note holds "; ": the fit's message joins its notes with it, and the perspective fit splits them again)
     if poor.any():
         notes.append(f"poor fit: {', '.join(robot.joint_names[k] for k in np.flatnonzero(poor))}: the tracks of "
                      f"{', '.join(points)} are fitted {ratio.max():.1f} times further off (median) than the noise "
-                     f"({noise:.2g} px; the tracks' own jitter {jitter:.2g} px) or the typical tracked point allow, "
+                     f"({noise:.2g} px, the tracks' own jitter {jitter:.2g} px) or the typical tracked point allow, "
                      "so the fit ended in a wrong basin or the model does not match the robot; the reported motion "
                      "is not known to be right")
     if ambiguous.any():  # the tied joints only: a poorly fitted one has its own note above
         names = [f"{robot.joint_names[k]} ({worst[k]:.0f} {unit[k]} RMS)" for k in np.flatnonzero(ambiguous)]
         notes.append(f"ambiguous: {', '.join(names)}: {len(alts)} other motion(s) fit the tracks as well "
                      f"(within {_tie_variances():g} noise variances) and differ there by more than "
-                     f"{AMBIGUOUS_DEG:g} degrees RMS; the reported one is a guess (fit.alternatives)"
-                     + (f"; {side_why}" if side_why else ""))
+                     f"{AMBIGUOUS_DEG:g} degrees RMS: the reported one is a guess (fit.alternatives)"
+                     + (f" ({side_why})" if side_why else ""))
     if uncertain.any():
         names = [f"{robot.joint_names[k]} ({spread[k]:.1f} {unit[k]})" for k in np.flatnonzero(uncertain)]
         notes.append(f"uncertain: {', '.join(names)}: the reported standard deviation (RMS over the frames, "
                      f"fit.q_std) is more than {AMBIGUOUS_DEG:g} degrees ({AMBIGUOUS_DEG:g} mm for a sliding joint): the "
-                     "tracks pin these joints down no better; reported, not trusted")
+                     "tracks pin these joints down no better: reported, not trusted")
     # one reason per joint ("" where none), each naming only what concerns that joint
     reasons = ["; ".join(why for flag, why in (
         (poor[k], f"poor fit: the tracks of {', '.join(points)} are fitted {ratio.max() if poor.any() else 0:.1f} "
