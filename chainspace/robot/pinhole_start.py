@@ -27,8 +27,9 @@ from .starts import _rotation_candidates, _sequential_ik
 from .uncertainty import track_jitter
 from .views import _PinholeView, _pinhole_pixels, _pinhole_pixels_by_point
 
-# the search's frames (spread over the sequence); depths of the robot's root tried per rotation, as multiples of the depth its image size suggests (f / px per metre,
-# which a robot reaching towards the lens makes too small)
+# the search's frames (spread over the sequence); depths of the robot's root tried per rotation, as
+# multiples of the depth its image size suggests (f / px per metre, which a robot reaching towards the
+# lens makes too small)
 SEARCH_FRAMES = 6
 DEPTH_FACTORS = (1.0, 2.0, 4.0)
 # candidate cameras of the search fitted with the joints of its frames (camera free), the IK's random
