@@ -211,3 +211,25 @@ def test_continuous_joint_robot_under_perspective(example_urdf):
     print(f"kinova under perspective, 8 frames, 1 px: worst joint {worst:.2f} deg RMS")
     assert worst < 1.5  # measured 0.67
     assert np.isfinite(fit.q_std[1:, judged]).all()
+
+
+def test_exact_twins_are_chosen_by_the_tie_policy_not_by_rounding(arm, arm_trial):
+    # the wrist's mirror image (a4 + pi, -a5, a6 + pi) ties with the true motion to rounding when the tracked
+    # points beyond the wrist lie in a plane seen face-on; which one rounds lower must not decide
+    from chainspace.robot.perspective import _nearest_rest_of_exact
+    robot = RobotKinematics(arm.metadata["urdf_path"], arm)
+    truth = arm_trial.q
+    twin = truth.copy()
+    twin[:, 3:6] = truth[:, 3:6] * [1, -1, 1] + [np.pi, 0, np.pi]
+    rn = np.zeros(arm_trial.tracks.shape[:2])
+    w = np.ones_like(rn)
+    start = dict(px_floor=0.5, gauge=np.eye(robot.nv, dtype=bool)[0])
+
+    def fit(q, objective):
+        return dict(q=q, objective=objective, rn=rn, start=start)
+
+    # within one noise variance (0.25 px^2 here): the motion nearer rest, whatever the order
+    assert _nearest_rest_of_exact(robot, [fit(twin, 1e-14), fit(truth, 3e-14)], w)["q"] is truth
+    assert _nearest_rest_of_exact(robot, [fit(twin, 0.0), fit(truth, 0.2)], w)["q"] is truth
+    # beyond it the tracks decide
+    assert _nearest_rest_of_exact(robot, [fit(twin, 0.0), fit(truth, 0.3)], w)["q"] is twin

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kinematics import RobotKinematics, _wrapped
+from .kinematics import RobotKinematics, _rest_distance, _wrapped
 from .solver import _huber, _motion_prior, _noise_sigma, _normal_equations, _sequence_lm, _smooth_lm, \
     _smoothed_objective
 from .views import _PinholeView, _camera_view, _pinhole_from_weak
@@ -305,7 +305,8 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
         if _robust(plain[2], w, lead["delta"]) - _robust(lead["rn"], w, lead["delta"]) <= TIE_VARIANCES * var0:
             fits += finish(plain[0], plain[1], lead["start"], plain[5])
     contend([])
-    best = fits[0]
+    best = _nearest_rest_of_exact(robot, fits, w)
+    fits[:] = [best] + [r for r in fits if r is not best]
     var = max(best["sse"] / max(n_obs - 7, 1), 1e-12)
     others = [r for r in fits[1:] if np.abs(_wrapped(robot, r["q"] - best["q"])).max() > 0.05]
     best["settled"] = all(r["objective"] - best["objective"] > LR_MARGIN * var for r in others)
@@ -331,6 +332,21 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     if best["measured"]:  # else the weak fit is reported, with its own
         best["trust"] = _trust(robot, best, fits, tr, w, search_ties)
     return best
+
+
+def _nearest_rest_of_exact(robot: RobotKinematics, fits: list[dict], w: np.ndarray) -> dict:
+    """Of the fits (ordered by objective) within one noise variance of the lowest, the nearest to rest
+    (the tie policy's distance, :func:`chainspace.robot.kinematics._rest_distance`).
+
+    Why: exact twins (a wrist's mirror image where the tracked points beyond it lie in one plane seen
+    face-on) differ in objective by rounding alone, and which one rounds lower changed with the OpenCV
+    build (the milling arm, K known, noise-free: 180 degrees off on the wrist with opencv 5.1, right
+    with 5.0). Within a noise variance the tracks do not choose (the rounding guard of ``finish``), so
+    the policy does, the same way on every machine; the twin stays an alternative."""
+    lead = fits[0]
+    var = max(_noise_sigma(lead["rn"], w), lead["start"]["px_floor"]) ** 2
+    exact = [r for r in fits if r["objective"] - lead["objective"] <= var]
+    return min(exact, key=lambda r: _rest_distance(robot, r["q"], r["q"][:1], r["start"]["gauge"]).mean())
 
 
 def _trust(robot: RobotKinematics, best: dict, fits: list[dict], tracks: np.ndarray, w: np.ndarray,
