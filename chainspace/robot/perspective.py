@@ -73,21 +73,20 @@ def _pnp_camera(x: np.ndarray, tracks: np.ndarray, w: np.ndarray, f: float, c: n
     if seen.sum() < 6:
         return None
     K = np.array([[f, 0.0, c[0]], [0.0, f, c[1]], [0.0, 0.0, 1.0]])
+    points, pixels = x[seen].astype(np.float64), tracks[seen].astype(np.float64)
     try:
         # SQPnP: a global minimum in front of the camera; the iterative (DLT-started) solver lands on the
         # twin behind it when the points are nearly coplanar (the double pendulum: 5 of 8 seeds, given the
         # true points)
-        ok, rv, tv = cv2.solvePnP(x[seen].astype(np.float64), tracks[seen].astype(np.float64), K, None,
-                                  flags=cv2.SOLVEPNP_SQPNP)
+        ok, rv, tv = cv2.solvePnP(points, pixels, K, None, flags=cv2.SOLVEPNP_SQPNP)
         if ok:
-            ok, rv, tv = cv2.solvePnP(x[seen].astype(np.float64), tracks[seen].astype(np.float64), K, None, rv, tv,
-                                      True, flags=cv2.SOLVEPNP_ITERATIVE)
+            ok, rv, tv = cv2.solvePnP(points, pixels, K, None, rv, tv, True, flags=cv2.SOLVEPNP_ITERATIVE)
     except cv2.error:
         return None
     if not ok or not (np.isfinite(rv).all() and np.isfinite(tv).all()):
         return None
     R = cv2.Rodrigues(rv)[0]
-    if (x[seen] @ R[2] + tv[2, 0] <= 0).any():  # see _in_front
+    if (points @ R[2] + tv[2, 0] <= 0).any():  # see _in_front
         return None
     return _PinholeView(R[None], tv.reshape(1, 3), float(f), np.asarray(c, float), np.zeros(len(x), int), False)
 
