@@ -327,6 +327,7 @@ class _BatchedKinematics:
         # each axis's cross-product matrix K and K^2 (Rodrigues), made once rather than at every call
         self.K = np.array([[[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]] for a in axis])
         self.KK = self.K @ self.K
+        self.K_KK = np.concatenate([self.K, self.KK], -1)  # (n, 3, 6): A K and A K^2 as one product
 
     @classmethod
     def of(cls, robot: RobotKinematics) -> "_BatchedKinematics | None":
@@ -381,10 +382,10 @@ class _BatchedKinematics:
             # the joint's frame at zero motion, then its motion (Rodrigues about its axis, or a slide
             # along it): products with constant 3x3 matrices, as one matrix product over all frames
             A = _right(Rp, self.M[j, :3, :3])
-            p[:, j] = pp + Rp @ self.M[j, :3, 3]
+            p[:, j] = pp + _right(Rp, self.M[j, :3, 3])
             if self.kind[j] == "prismatic":
                 R[:, j] = A
-                p[:, j] += (self.scaling[j] * q[:, self.idx_q[j]] + self.offset[j])[:, None] * (A @ self.axis[j])
+                p[:, j] += (self.scaling[j] * q[:, self.idx_q[j]] + self.offset[j])[:, None] * _right(A, self.axis[j])
                 continue
             if self.kind[j] == "fixed":
                 R[:, j] = A
@@ -394,7 +395,8 @@ class _BatchedKinematics:
             else:
                 th = self.scaling[j] * q[:, self.idx_q[j]] + self.offset[j]
                 c, s = np.cos(th), np.sin(th)
-            R[:, j] = A + s[:, None, None] * _right(A, self.K[j]) + (1 - c)[:, None, None] * _right(A, self.KK[j])
+            AK = _right(A, self.K_KK[j])  # (F, 3, 6): A K, A K^2 (each column its own sums: the same bits)
+            R[:, j] = A + s[:, None, None] * AK[..., :3] + (1 - c)[:, None, None] * AK[..., 3:]
         return R, p
 
     def world_jacobian(self, R: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -406,7 +408,7 @@ class _BatchedKinematics:
         for j in range(1, len(self.parents)):
             if self.kind[j] == "fixed":
                 continue
-            w = self.scaling[j] * R[:, j] @ self.axis[j]  # (F, 3) axis in world axes
+            w = _right(self.scaling[j] * R[:, j], self.axis[j])  # (F, 3) axis in world axes
             if self.kind[j] == "prismatic":
                 J[:, :3, self.col[j]] = w
             else:
@@ -419,8 +421,10 @@ class _BatchedKinematics:
 
 
 def _right(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """A @ B for a stack A (F, 3, 3) and one B (3, 3), as one (3F, 3) x (3, 3) product."""
-    return (A.reshape(-1, 3) @ B).reshape(A.shape)
+    """A @ B for a stack A (F, 3, 3) and one B (3, k) or (3,), as one (3F, 3) x (3, k) (or x (3,)) product:
+    numpy's stacked matmul makes one BLAS call per matrix of the stack, which cost more than the
+    products for the thousands of configurations of a branch search (the same sums, the same bits)."""
+    return (A.reshape(-1, 3) @ B).reshape(A.shape[:-1] + B.shape[1:])
 
 
 def _check_supported_joints(model, path) -> None:
