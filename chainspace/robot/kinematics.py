@@ -5,10 +5,24 @@ steps and distances (angles wrapped on continuous joints, limits kept by project
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
+
 import numpy as np
 
 from ..chain import KinematicChain
 from ..errors import DescriptionError, DescriptionNotFoundError
+
+
+class Placed(NamedTuple):
+    """Configurations' kinematics (:meth:`RobotKinematics.placed`): the chain's points (F, J, 3), metres,
+    and the joints' world rotations R (F, njoints, 3, 3) and origins p (F, njoints, 3); ``spatial``
+    (F, 6, nv extended): Pinocchio's world joint Jacobian where the kinematics looped over Pinocchio,
+    else None (made from R and p when asked)."""
+
+    pos: np.ndarray
+    R: np.ndarray
+    p: np.ndarray
+    spatial: np.ndarray | None
 
 
 class RobotKinematics:
@@ -268,11 +282,20 @@ class RobotKinematics:
 
     def jacobians(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Positions (F, J, 3) and translational frame Jacobians (F, J, 3, nv) in world axes."""
+        placed = self.placed(q)
+        return placed.pos, self.jacobians_of(placed)
+
+    def placed(self, q: np.ndarray) -> Placed:
+        """The kinematics of configurations q (F, nq): the positions (F, J, 3) and what
+        :meth:`jacobians_of` needs to give any frames' Jacobians later without redoing them.
+
+        Why: a solver needs Jacobians only at the steps it accepts and goes on from, while it evaluates
+        every trial step; about a third of a branch search's trials are rejected or end their search."""
         pin, m, d = self.pin, self.model, self.data
         q = np.atleast_2d(q)
+        spatial = None
         if self._batch is not None:
             R, p = self._batch.placements(q)
-            spatial = self._batch.world_jacobian(R, p)
         else:
             placements = np.empty((len(q), m.njoints, 4, 4))
             spatial = np.empty((len(q), 6, self._fold.shape[0]))
@@ -281,14 +304,21 @@ class RobotKinematics:
                 spatial[f] = d.J
                 placements[f] = [M.homogeneous for M in d.oMi.tolist()]
             R, p = placements[..., :3, :3], placements[..., :3, 3]
+        return Placed(self._points(R, p), R, p, spatial)
+
+    def jacobians_of(self, placed: Placed, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """Translational frame Jacobians (len(rows), J, 3, nv), world axes, of the frames ``rows`` of
+        configurations already :meth:`placed` (the same numbers as :meth:`jacobians` of those rows)."""
+        R, p = placed.R[rows], placed.p[rows]
+        spatial = self._batch.world_jacobian(R, p) if placed.spatial is None else placed.spatial[rows]
         # What pin.getFrameJacobian(LOCAL_WORLD_ALIGNED) returns: the world Jacobian's twist moved to each
         # point, on the joints that carry it; for all points and frames at once. One Pinocchio call per
         # point and frame cost more than the kinematics themselves.
-        pos = self._points(R, p)
+        pos = placed.pos[rows]
         a, p = spatial[:, None, 3:], pos[..., None]
         # lin + ang x pos, by components written in place (np.cross's axis juggling, or a stack of the
         # components, cost as much as the kinematics)
-        jac = np.empty((len(q), pos.shape[1], 3, spatial.shape[2]))
+        jac = np.empty((len(pos), pos.shape[1], 3, spatial.shape[2]))
         np.multiply(a[:, :, 1], p[:, :, 2], out=jac[:, :, 0])
         jac[:, :, 0] -= a[:, :, 2] * p[:, :, 1]
         np.multiply(a[:, :, 2], p[:, :, 0], out=jac[:, :, 1])
@@ -297,7 +327,7 @@ class RobotKinematics:
         jac[:, :, 2] -= a[:, :, 1] * p[:, :, 0]
         jac += spatial[:, None, :3]
         jac *= self._carried_by[:, None]
-        return pos, (jac @ self._fold if self._mimic else jac)
+        return jac @ self._fold if self._mimic else jac
 
     def reach(self) -> float:
         """Largest distance of a chain point from the root over the rest pose and the limits' middle, m."""
