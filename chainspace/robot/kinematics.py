@@ -15,7 +15,7 @@ from ..errors import DescriptionError, DescriptionNotFoundError
 
 class Placed(NamedTuple):
     """Configurations' kinematics (:meth:`RobotKinematics.placed`): the chain's points (F, J, 3), metres,
-    and the joints' world rotations R (F, njoints, 3, 3) and origins p (F, njoints, 3); ``spatial``
+    and the joints' world rotations R (njoints, F, 3, 3) and origins p (njoints, F, 3); ``spatial``
     (F, 6, nv extended): Pinocchio's world joint Jacobian where the kinematics looped over Pinocchio,
     else None (made from R and p when asked)."""
 
@@ -267,18 +267,18 @@ class RobotKinematics:
         q = np.atleast_2d(q)
         if self._batch is not None:
             return self._points(*self._batch.placements(q))
-        placements = np.empty((len(q), m.njoints, 4, 4))
+        placements = np.empty((m.njoints, len(q), 4, 4))
         for f, qf in enumerate(q):
             pin.forwardKinematics(m, d, qf)
-            placements[f] = [M.homogeneous for M in d.oMi.tolist()]
+            placements[:, f] = [M.homogeneous for M in d.oMi.tolist()]
         return self._points(placements[..., :3, :3], placements[..., :3, 3])
 
     def _points(self, R: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """The chain's points (F, J, 3) from the joints' world rotations (F, njoints, 3, 3) and origins
-        (F, njoints, 3): one product for all points and frames, where reading each point's placement
+        """The chain's points (F, J, 3) from the joints' world rotations (njoints, F, 3, 3) and origins
+        (njoints, F, 3): one product for all points and frames, where reading each point's placement
         from Pinocchio takes a call."""
         k = self._parent_joint
-        return np.einsum("fjab,jb->fja", R[:, k], self._in_parent[:, :3]) + p[:, k]
+        return np.einsum("jfab,jb->fja", R[k], self._in_parent[:, :3]) + p[k].swapaxes(0, 1)
 
     def jacobians(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Positions (F, J, 3) and translational frame Jacobians (F, J, 3, nv) in world axes."""
@@ -297,19 +297,19 @@ class RobotKinematics:
         if self._batch is not None:
             R, p = self._batch.placements(q)
         else:
-            placements = np.empty((len(q), m.njoints, 4, 4))
+            placements = np.empty((m.njoints, len(q), 4, 4))
             spatial = np.empty((len(q), 6, self._fold.shape[0]))
             for f, qf in enumerate(q):
                 pin.computeJointJacobians(m, d, qf)
                 spatial[f] = d.J
-                placements[f] = [M.homogeneous for M in d.oMi.tolist()]
+                placements[:, f] = [M.homogeneous for M in d.oMi.tolist()]
             R, p = placements[..., :3, :3], placements[..., :3, 3]
         return Placed(self._points(R, p), R, p, spatial)
 
     def jacobians_of(self, placed: Placed, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
         """Translational frame Jacobians (len(rows), J, 3, nv), world axes, of the frames ``rows`` of
         configurations already :meth:`placed` (the same numbers as :meth:`jacobians` of those rows)."""
-        R, p = placed.R[rows], placed.p[rows]
+        R, p = placed.R[:, rows], placed.p[:, rows]
         spatial = self._batch.world_jacobian(R, p) if placed.spatial is None else placed.spatial[rows]
         # What pin.getFrameJacobian(LOCAL_WORLD_ALIGNED) returns: the world Jacobian's twist moved to each
         # point, on the joints that carry it; for all points and frames at once. One Pinocchio call per
@@ -397,28 +397,29 @@ class _BatchedKinematics:
         pin.forwardKinematics(m, d, qr)
         R, p = out.placements(qr[None])
         ref = np.array([M.homogeneous for M in d.oMi.tolist()])
-        if not (np.allclose(R[0], ref[:, :3, :3], atol=1e-9) and np.allclose(p[0], ref[:, :3, 3], atol=1e-9)):
+        if not (np.allclose(R[:, 0], ref[:, :3, :3], atol=1e-9) and np.allclose(p[:, 0], ref[:, :3, 3], atol=1e-9)):
             return None  # a joint this class reads differently from Pinocchio: keep Pinocchio
         return out
 
     def placements(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World rotations (F, njoints, 3, 3) and origins (F, njoints, 3) of the joints (Pinocchio's
-        ``oMi``) for q (F, nq)."""
+        """World rotations (njoints, F, 3, 3) and origins (njoints, F, 3) of the joints (Pinocchio's
+        ``oMi``) for q (F, nq). Joint-major: each joint's stack is one contiguous block, which the
+        products over all frames read and write without copies."""
         F, n = len(q), len(self.parents)
-        R, p = np.empty((F, n, 3, 3)), np.empty((F, n, 3))
-        R[:, 0], p[:, 0] = np.eye(3), 0.0
+        R, p = np.empty((n, F, 3, 3)), np.empty((n, F, 3))
+        R[0], p[0] = np.eye(3), 0.0
         for j in range(1, n):
-            Rp, pp = R[:, self.parents[j]], p[:, self.parents[j]]
+            Rp, pp = R[self.parents[j]], p[self.parents[j]]
             # the joint's frame at zero motion, then its motion (Rodrigues about its axis, or a slide
             # along it): products with constant 3x3 matrices, as one matrix product over all frames
             A = _right(Rp, self.M[j, :3, :3])
-            p[:, j] = pp + _right(Rp, self.M[j, :3, 3])
+            p[j] = pp + _right(Rp, self.M[j, :3, 3])
             if self.kind[j] == "prismatic":
-                R[:, j] = A
-                p[:, j] += (self.scaling[j] * q[:, self.idx_q[j]] + self.offset[j])[:, None] * _right(A, self.axis[j])
+                R[j] = A
+                p[j] += (self.scaling[j] * q[:, self.idx_q[j]] + self.offset[j])[:, None] * _right(A, self.axis[j])
                 continue
             if self.kind[j] == "fixed":
-                R[:, j] = A
+                R[j] = A
                 continue
             if self.kind[j] == "continuous":
                 c, s = q[:, self.idx_q[j]], q[:, self.idx_q[j] + 1]
@@ -426,23 +427,23 @@ class _BatchedKinematics:
                 th = self.scaling[j] * q[:, self.idx_q[j]] + self.offset[j]
                 c, s = np.cos(th), np.sin(th)
             AK = _right(A, self.K_KK[j])  # (F, 3, 6): A K, A K^2 (each column its own sums: the same bits)
-            R[:, j] = A + s[:, None, None] * AK[..., :3] + (1 - c)[:, None, None] * AK[..., 3:]
+            R[j] = A + s[:, None, None] * AK[..., :3] + (1 - c)[:, None, None] * AK[..., 3:]
         return R, p
 
     def world_jacobian(self, R: np.ndarray, p: np.ndarray) -> np.ndarray:
         """Pinocchio's world joint Jacobian ``J`` (F, 6, nv (extended)) from :meth:`placements`: per joint
         column, the linear velocity of the point at the world origin and the angular velocity, as
         ``computeJointJacobians`` gives it."""
-        F = len(R)
+        F = R.shape[1]
         J = np.zeros((F, 6, self.nvx))
         for j in range(1, len(self.parents)):
             if self.kind[j] == "fixed":
                 continue
-            w = _right(self.scaling[j] * R[:, j], self.axis[j])  # (F, 3) axis in world axes
+            w = _right(self.scaling[j] * R[j], self.axis[j])  # (F, 3) axis in world axes
             if self.kind[j] == "prismatic":
                 J[:, :3, self.col[j]] = w
             else:
-                o, c = p[:, j], self.col[j]
+                o, c = p[j], self.col[j]
                 J[:, 0, c] = o[:, 1] * w[:, 2] - o[:, 2] * w[:, 1]
                 J[:, 1, c] = o[:, 2] * w[:, 0] - o[:, 0] * w[:, 2]
                 J[:, 2, c] = o[:, 0] * w[:, 1] - o[:, 1] * w[:, 0]

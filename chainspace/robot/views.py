@@ -109,7 +109,8 @@ class _View:
     def apply(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(prediction (F, J, D), rotated points y = R x (F, J, 3))."""
         c = self.cam_of
-        y = np.einsum("fij,fkj->fki", self.R[c], x)
+        # one view for all frames: its rotation as one operand, not gathered once per frame
+        y = np.einsum("ij,fkj->fki", self.R[0], x) if len(self.S) == 1 else np.einsum("fij,fkj->fki", self.R[c], x)
         D = self.T.shape[1]
         return self.S[c][:, None, None] * y[..., :D] + self.T[c][:, None], y
 
