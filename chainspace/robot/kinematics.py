@@ -281,9 +281,9 @@ class RobotKinematics:
         return np.einsum("jfab,jb->fja", R[k], self._in_parent[:, :3]) + p[k].swapaxes(0, 1)
 
     def jacobians(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Positions (F, J, 3) and translational frame Jacobians (F, J, 3, nv) in world axes."""
+        """Positions (F, J, 3) and translational frame Jacobians (F, J, 3, nv) in world axes (C-ordered)."""
         placed = self.placed(q)
-        return placed.pos, self.jacobians_of(placed)
+        return placed.pos, np.ascontiguousarray(self.jacobians_of(placed))
 
     def placed(self, q: np.ndarray) -> Placed:
         """The kinematics of configurations q (F, nq): the positions (F, J, 3) and what
@@ -308,26 +308,27 @@ class RobotKinematics:
 
     def jacobians_of(self, placed: Placed, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
         """Translational frame Jacobians (len(rows), J, 3, nv), world axes, of the frames ``rows`` of
-        configurations already :meth:`placed` (the same numbers as :meth:`jacobians` of those rows)."""
+        configurations already :meth:`placed` (the numbers of :meth:`jacobians` of those rows), as a
+        view with the frames innermost in memory: a caller whose products depend on the layout (BLAS
+        or not) makes it C-ordered first."""
         R, p = placed.R[:, rows], placed.p[:, rows]
         spatial = self._batch.world_jacobian(R, p) if placed.spatial is None else placed.spatial[rows]
         # What pin.getFrameJacobian(LOCAL_WORLD_ALIGNED) returns: the world Jacobian's twist moved to each
         # point, on the joints that carry it; for all points and frames at once. One Pinocchio call per
         # point and frame cost more than the kinematics themselves.
-        pos = placed.pos[rows]
-        a, p = spatial[:, None, 3:], pos[..., None]
-        # lin + ang x pos, by components written in place (np.cross's axis juggling, or a stack of the
-        # components, cost as much as the kinematics)
-        jac = np.empty((len(pos), pos.shape[1], 3, spatial.shape[2]))
-        np.multiply(a[:, :, 1], p[:, :, 2], out=jac[:, :, 0])
-        jac[:, :, 0] -= a[:, :, 2] * p[:, :, 1]
-        np.multiply(a[:, :, 2], p[:, :, 0], out=jac[:, :, 1])
-        jac[:, :, 1] -= a[:, :, 0] * p[:, :, 2]
-        np.multiply(a[:, :, 0], p[:, :, 1], out=jac[:, :, 2])
-        jac[:, :, 2] -= a[:, :, 1] * p[:, :, 0]
-        jac += spatial[:, None, :3]
-        jac *= self._carried_by[:, None]
-        return jac @ self._fold if self._mimic else jac
+        lin, ang = np.moveaxis(spatial, 0, -1)[:3], np.moveaxis(spatial, 0, -1)[3:]  # (3, nv ext, F)
+        x = np.ascontiguousarray(np.moveaxis(placed.pos[rows], 0, -1).swapaxes(0, 1))  # (3, J, F)
+        # lin + ang x pos, by components written in place, frames last: numpy's loops then run over
+        # all frames at once (frames first, they ran over rows of nv and cost more than the kinematics)
+        jac = np.empty((3, x.shape[1], spatial.shape[2], x.shape[2]))  # (3, J, nv ext, F)
+        tmp = np.empty(jac.shape[1:])
+        for i, k, l in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+            np.multiply(ang[k], x[l][:, None], out=jac[i])
+            jac[i] -= np.multiply(ang[l], x[k][:, None], out=tmp)
+        jac += lin[:, None]
+        jac *= self._carried_by[:, :, None]
+        jac = jac.transpose(3, 1, 0, 2)  # (F, J, 3, nv ext), not C-ordered
+        return np.ascontiguousarray(jac) @ self._fold if self._mimic else jac
 
     def reach(self) -> float:
         """Largest distance of a chain point from the root over the rest pose and the limits' middle, m."""
@@ -357,7 +358,6 @@ class _BatchedKinematics:
         # each axis's cross-product matrix K and K^2 (Rodrigues), made once rather than at every call
         self.K = np.array([[[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]] for a in axis])
         self.KK = self.K @ self.K
-        self.K_KK = np.concatenate([self.K, self.KK], -1)  # (n, 3, 6): A K and A K^2 as one product
 
     @classmethod
     def of(cls, robot: RobotKinematics) -> "_BatchedKinematics | None":
@@ -426,8 +426,9 @@ class _BatchedKinematics:
             else:
                 th = self.scaling[j] * q[:, self.idx_q[j]] + self.offset[j]
                 c, s = np.cos(th), np.sin(th)
-            AK = _right(A, self.K_KK[j])  # (F, 3, 6): A K, A K^2 (each column its own sums: the same bits)
-            R[j] = A + s[:, None, None] * AK[..., :3] + (1 - c)[:, None, None] * AK[..., 3:]
+            # two products, not one with [K | K^2]: the halves of that would be strided, and numpy's
+            # elementwise loops over rows of 3 cost more than the second product
+            R[j] = A + s[:, None, None] * _right(A, self.K[j]) + (1 - c)[:, None, None] * _right(A, self.KK[j])
         return R, p
 
     def world_jacobian(self, R: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -435,24 +436,24 @@ class _BatchedKinematics:
         column, the linear velocity of the point at the world origin and the angular velocity, as
         ``computeJointJacobians`` gives it."""
         F = R.shape[1]
-        J = np.zeros((F, 6, self.nvx))
+        J = np.zeros((6, self.nvx, F))  # frames innermost: each entry's row of frames is contiguous
         for j in range(1, len(self.parents)):
             if self.kind[j] == "fixed":
                 continue
-            w = _right(self.scaling[j] * R[j], self.axis[j])  # (F, 3) axis in world axes
+            w = _right(self.scaling[j] * R[j], self.axis[j]).T  # (3, F) axis in world axes
             if self.kind[j] == "prismatic":
-                J[:, :3, self.col[j]] = w
+                J[:3, self.col[j]] = w
             else:
-                o, c = p[j], self.col[j]
-                J[:, 0, c] = o[:, 1] * w[:, 2] - o[:, 2] * w[:, 1]
-                J[:, 1, c] = o[:, 2] * w[:, 0] - o[:, 0] * w[:, 2]
-                J[:, 2, c] = o[:, 0] * w[:, 1] - o[:, 1] * w[:, 0]
-                J[:, 3:, c] = w
-        return J
+                o, c = p[j].T, self.col[j]
+                J[0, c] = o[1] * w[2] - o[2] * w[1]
+                J[1, c] = o[2] * w[0] - o[0] * w[2]
+                J[2, c] = o[0] * w[1] - o[1] * w[0]
+                J[3:, c] = w
+        return J.transpose(2, 0, 1)
 
 
 def _right(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """A @ B for a stack A (F, 3, 3) and one B (3, k) or (3,), as one (3F, 3) x (3, k) (or x (3,)) product:
+    """A @ B for a stack A (F, 3, 3) and one B (3, 3) or (3,), as one (3F, 3) x (3, 3) (or x (3,)) product:
     numpy's stacked matmul makes one BLAS call per matrix of the stack, which cost more than the
     products for the thousands of configurations of a branch search (the same sums, the same bits)."""
     return (A.reshape(-1, 3) @ B).reshape(A.shape[:-1] + B.shape[1:])

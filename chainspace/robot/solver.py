@@ -33,8 +33,9 @@ def _normal_equations(view: _View, jac: np.ndarray, y: np.ndarray, res: np.ndarr
         # point Jacobians in a single product rather than one tiny product per point and frame
         Jq = np.moveaxis(np.tensordot(view.matrices()[0], jac, axes=([1], [2])), 0, 2)
     else:
-        Jq = view.derivatives(y)[0] @ jac
-    Jq = (Jq * free[:, None, None, :]).reshape(F, J * D, -1)
+        Jq = view.derivatives(y)[0] @ np.ascontiguousarray(jac)  # C-ordered: the layout BLAS was given
+    # the mask only where a direction is held (a product by ones is the same numbers, at a cost)
+    Jq = (Jq if free.all() else Jq * free[:, None, None, :]).reshape(F, J * D, -1)
     # batched products over the stacked (point, axis) rows: einsum's three-operand loops were the
     # solver's main cost after the kinematics
     JqW = (Jq * np.repeat(ww, D, axis=1)[..., None]).transpose(0, 2, 1)
