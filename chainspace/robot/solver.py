@@ -31,7 +31,8 @@ def _normal_equations(view: _View, jac: np.ndarray, y: np.ndarray, res: np.ndarr
     if len(view.S) == 1 and isinstance(view, _View):
         # one view for every frame: d prediction / d point is one (D, 3) matrix, applied to all the
         # point Jacobians in a single product rather than one tiny product per point and frame
-        Jq = np.moveaxis(np.tensordot(view.matrices()[0], jac, axes=([1], [2])), 0, 2)
+        M = view.S[0] * view.R[0, :D]  # the view's s R[:D] (view.matrices() makes it once per frame)
+        Jq = np.moveaxis(np.tensordot(M, jac, axes=([1], [2])), 0, 2)
     else:
         Jq = view.derivatives(y)[0] @ np.ascontiguousarray(jac)  # C-ordered: the layout BLAS was given
     # the mask only where a direction is held (a product by ones is the same numbers, at a cost)
