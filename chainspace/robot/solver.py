@@ -268,7 +268,7 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
             active[live[lead != live]] = False
         on = better & active[a]  # rows that took a step and go on: their Jacobians at the new q
         if on.any():
-            jac[a[on]] = robot.jacobians_of(pl_t, np.flatnonzero(on))
+            jac[a[on]] = robot.jacobians_of(pl_t, slice(None) if on.all() else np.flatnonzero(on))
         if not active.any():
             break
     if problem is not None:

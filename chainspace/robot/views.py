@@ -35,10 +35,13 @@ def similarity_align(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | Non
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
-    """(..., 3) -> (..., 3, 3) cross-product matrices."""
-    z = np.zeros(v.shape[:-1])
+    """(..., 3) -> (..., 3, 3) cross-product matrices (entries written in place: nested np.stack
+    cost more than the products the solvers make with them)."""
+    out = np.zeros(v.shape[:-1] + (3, 3))
     x, y, w = v[..., 0], v[..., 1], v[..., 2]
-    return np.stack([np.stack([z, -w, y], -1), np.stack([w, z, -x], -1), np.stack([-y, x, z], -1)], -2)
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -w, y, -x
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = w, -y, x
+    return out
 
 
 def _rotvec(w: np.ndarray) -> np.ndarray:
