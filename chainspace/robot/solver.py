@@ -32,11 +32,13 @@ def _normal_equations(view: _View, jac: np.ndarray, y: np.ndarray, res: np.ndarr
         # one view for every frame: d prediction / d point is one (D, 3) matrix, applied to all the
         # point Jacobians in a single product rather than one tiny product per point and frame
         M = view.S[0] * view.R[0, :D]  # the view's s R[:D] (view.matrices() makes it once per frame)
-        Jq = np.moveaxis(np.tensordot(M, jac, axes=([1], [2])), 0, 2)
+        # np.tensordot's own steps (the 3-axis first, one product) without its Python overhead
+        Jq = np.dot(M, jac.transpose(2, 0, 1, 3).reshape(3, -1)).reshape(D, F, J, -1).transpose(1, 2, 0, 3)
     else:
         Jq = view.derivatives(y)[0] @ np.ascontiguousarray(jac)  # C-ordered: the layout BLAS was given
-    # the mask only where a direction is held (a product by ones is the same numbers, at a cost)
-    Jq = (Jq if free.all() else Jq * free[:, None, None, :]).reshape(F, J * D, -1)
+    # the mask only where a direction is held (a product by ones is the same numbers, at a cost), and
+    # as floats: a bool operand made numpy cast it element by element
+    Jq = (Jq if free.all() else Jq * free.astype(float)[:, None, None, :]).reshape(F, J * D, -1)
     # batched products over the stacked (point, axis) rows: einsum's three-operand loops were the
     # solver's main cost after the kinematics
     JqW = (Jq * np.repeat(ww, D, axis=1)[..., None]).transpose(0, 2, 1)
