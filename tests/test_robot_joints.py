@@ -213,6 +213,31 @@ def test_batched_kinematics_match_pinocchio(urdf, tmp_path, request):
     assert np.allclose(RobotKinematics(path, from_urdf(path)).positions(q), pos_ref, atol=1e-12)
 
 
+@pytest.mark.parametrize("urdf", ["milling_arm", "mimic"])
+@pytest.mark.parametrize("loop", [False, True])
+def test_jacobians_of_some_placed_frames_are_theirs(urdf, loop, tmp_path):
+    """The solvers place every trial step and take the Jacobians of the steps they keep afterwards
+    (RobotKinematics.placed, jacobians_of): those rows' Jacobians are the ones of the whole batch, in
+    the batched kinematics and in the loop over Pinocchio."""
+    from chainspace.robot.kinematics import _random_q
+
+    if urdf == "mimic":
+        path = tmp_path / "mimic_gripper.urdf"
+        path.write_text(MIMIC_URDF)
+    else:
+        path = shipped_path(urdf)
+    robot = RobotKinematics(path, from_urdf(path))
+    if loop:
+        robot._batch = None
+    q = _random_q(robot, np.random.default_rng(3), 40)
+    pos, jac = robot.jacobians(q)
+    placed = robot.placed(q)
+    rows = np.array([31, 2, 2, 17, 0])
+    np.testing.assert_array_equal(placed.pos, pos)
+    np.testing.assert_allclose(robot.jacobians_of(placed, rows), jac[rows], rtol=0, atol=1e-12)
+    assert np.abs(jac[rows]).max() > 0.1  # not a comparison of zeros
+
+
 def test_repeated_and_meeting_starts_are_solved_once_with_the_same_answers():
     """The solver's shortcut for independent frames: a batch that repeats rows (one start, target and
     weights twice), or whose starts meet, gives every row what solving it alone gives."""

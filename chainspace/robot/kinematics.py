@@ -5,10 +5,24 @@ steps and distances (angles wrapped on continuous joints, limits kept by project
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
+
 import numpy as np
 
 from ..chain import KinematicChain
 from ..errors import DescriptionError, DescriptionNotFoundError
+
+
+class Placed(NamedTuple):
+    """Configurations' kinematics (:meth:`RobotKinematics.placed`): the chain's points (F, J, 3), metres,
+    and the joints' world rotations R (njoints, F, 3, 3) and origins p (njoints, F, 3); ``spatial``
+    (F, 6, nv extended): Pinocchio's world joint Jacobian where the kinematics looped over Pinocchio,
+    else None (made from R and p when asked)."""
+
+    pos: np.ndarray
+    R: np.ndarray
+    p: np.ndarray
+    spatial: np.ndarray | None
 
 
 class RobotKinematics:
@@ -253,51 +267,68 @@ class RobotKinematics:
         q = np.atleast_2d(q)
         if self._batch is not None:
             return self._points(*self._batch.placements(q))
-        placements = np.empty((len(q), m.njoints, 4, 4))
+        placements = np.empty((m.njoints, len(q), 4, 4))
         for f, qf in enumerate(q):
             pin.forwardKinematics(m, d, qf)
-            placements[f] = [M.homogeneous for M in d.oMi.tolist()]
+            placements[:, f] = [M.homogeneous for M in d.oMi.tolist()]
         return self._points(placements[..., :3, :3], placements[..., :3, 3])
 
     def _points(self, R: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """The chain's points (F, J, 3) from the joints' world rotations (F, njoints, 3, 3) and origins
-        (F, njoints, 3): one product for all points and frames, where reading each point's placement
+        """The chain's points (F, J, 3) from the joints' world rotations (njoints, F, 3, 3) and origins
+        (njoints, F, 3): one product for all points and frames, where reading each point's placement
         from Pinocchio takes a call."""
         k = self._parent_joint
-        return np.einsum("fjab,jb->fja", R[:, k], self._in_parent[:, :3]) + p[:, k]
+        return np.einsum("jfab,jb->fja", R[k], self._in_parent[:, :3]) + p[k].swapaxes(0, 1)
 
     def jacobians(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Positions (F, J, 3) and translational frame Jacobians (F, J, 3, nv) in world axes."""
+        """Positions (F, J, 3) and translational frame Jacobians (F, J, 3, nv) in world axes (C-ordered)."""
+        placed = self.placed(q)
+        return placed.pos, np.ascontiguousarray(self.jacobians_of(placed))
+
+    def placed(self, q: np.ndarray) -> Placed:
+        """The kinematics of configurations q (F, nq): the positions (F, J, 3) and what
+        :meth:`jacobians_of` needs to give any frames' Jacobians later without redoing them.
+
+        Why: a solver needs Jacobians only at the steps it accepts and goes on from, while it evaluates
+        every trial step; about a third of a branch search's trials are rejected or end their search."""
         pin, m, d = self.pin, self.model, self.data
         q = np.atleast_2d(q)
+        spatial = None
         if self._batch is not None:
             R, p = self._batch.placements(q)
-            spatial = self._batch.world_jacobian(R, p)
         else:
-            placements = np.empty((len(q), m.njoints, 4, 4))
+            placements = np.empty((m.njoints, len(q), 4, 4))
             spatial = np.empty((len(q), 6, self._fold.shape[0]))
             for f, qf in enumerate(q):
                 pin.computeJointJacobians(m, d, qf)
                 spatial[f] = d.J
-                placements[f] = [M.homogeneous for M in d.oMi.tolist()]
+                placements[:, f] = [M.homogeneous for M in d.oMi.tolist()]
             R, p = placements[..., :3, :3], placements[..., :3, 3]
+        return Placed(self._points(R, p), R, p, spatial)
+
+    def jacobians_of(self, placed: Placed, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """Translational frame Jacobians (len(rows), J, 3, nv), world axes, of the frames ``rows`` of
+        configurations already :meth:`placed` (the numbers of :meth:`jacobians` of those rows), as a
+        view with the frames innermost in memory: a caller whose products depend on the layout (BLAS
+        or not) makes it C-ordered first."""
+        R, p = placed.R[:, rows], placed.p[:, rows]
+        spatial = self._batch.world_jacobian(R, p) if placed.spatial is None else placed.spatial[rows]
         # What pin.getFrameJacobian(LOCAL_WORLD_ALIGNED) returns: the world Jacobian's twist moved to each
         # point, on the joints that carry it; for all points and frames at once. One Pinocchio call per
         # point and frame cost more than the kinematics themselves.
-        pos = self._points(R, p)
-        a, p = spatial[:, None, 3:], pos[..., None]
-        # lin + ang x pos, by components written in place (np.cross's axis juggling, or a stack of the
-        # components, cost as much as the kinematics)
-        jac = np.empty((len(q), pos.shape[1], 3, spatial.shape[2]))
-        np.multiply(a[:, :, 1], p[:, :, 2], out=jac[:, :, 0])
-        jac[:, :, 0] -= a[:, :, 2] * p[:, :, 1]
-        np.multiply(a[:, :, 2], p[:, :, 0], out=jac[:, :, 1])
-        jac[:, :, 1] -= a[:, :, 0] * p[:, :, 2]
-        np.multiply(a[:, :, 0], p[:, :, 1], out=jac[:, :, 2])
-        jac[:, :, 2] -= a[:, :, 1] * p[:, :, 0]
-        jac += spatial[:, None, :3]
-        jac *= self._carried_by[:, None]
-        return pos, (jac @ self._fold if self._mimic else jac)
+        lin, ang = np.moveaxis(spatial, 0, -1)[:3], np.moveaxis(spatial, 0, -1)[3:]  # (3, nv ext, F)
+        x = np.ascontiguousarray(np.moveaxis(placed.pos[rows], 0, -1).swapaxes(0, 1))  # (3, J, F)
+        # lin + ang x pos, by components written in place, frames last: numpy's loops then run over
+        # all frames at once (frames first, they ran over rows of nv and cost more than the kinematics)
+        jac = np.empty((3, x.shape[1], spatial.shape[2], x.shape[2]))  # (3, J, nv ext, F)
+        tmp = np.empty(jac.shape[1:])
+        for i, k, l in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+            np.multiply(ang[k], x[l][:, None], out=jac[i])
+            jac[i] -= np.multiply(ang[l], x[k][:, None], out=tmp)
+        jac += lin[:, None]
+        jac *= self._carried_by[:, :, None]
+        jac = jac.transpose(3, 1, 0, 2)  # (F, J, 3, nv ext), not C-ordered
+        return np.ascontiguousarray(jac) @ self._fold if self._mimic else jac
 
     def reach(self) -> float:
         """Largest distance of a chain point from the root over the rest pose and the limits' middle, m."""
@@ -366,61 +397,66 @@ class _BatchedKinematics:
         pin.forwardKinematics(m, d, qr)
         R, p = out.placements(qr[None])
         ref = np.array([M.homogeneous for M in d.oMi.tolist()])
-        if not (np.allclose(R[0], ref[:, :3, :3], atol=1e-9) and np.allclose(p[0], ref[:, :3, 3], atol=1e-9)):
+        if not (np.allclose(R[:, 0], ref[:, :3, :3], atol=1e-9) and np.allclose(p[:, 0], ref[:, :3, 3], atol=1e-9)):
             return None  # a joint this class reads differently from Pinocchio: keep Pinocchio
         return out
 
     def placements(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World rotations (F, njoints, 3, 3) and origins (F, njoints, 3) of the joints (Pinocchio's
-        ``oMi``) for q (F, nq)."""
+        """World rotations (njoints, F, 3, 3) and origins (njoints, F, 3) of the joints (Pinocchio's
+        ``oMi``) for q (F, nq). Joint-major: each joint's stack is one contiguous block, which the
+        products over all frames read and write without copies."""
         F, n = len(q), len(self.parents)
-        R, p = np.empty((F, n, 3, 3)), np.empty((F, n, 3))
-        R[:, 0], p[:, 0] = np.eye(3), 0.0
+        R, p = np.empty((n, F, 3, 3)), np.empty((n, F, 3))
+        R[0], p[0] = np.eye(3), 0.0
         for j in range(1, n):
-            Rp, pp = R[:, self.parents[j]], p[:, self.parents[j]]
+            Rp, pp = R[self.parents[j]], p[self.parents[j]]
             # the joint's frame at zero motion, then its motion (Rodrigues about its axis, or a slide
             # along it): products with constant 3x3 matrices, as one matrix product over all frames
             A = _right(Rp, self.M[j, :3, :3])
-            p[:, j] = pp + Rp @ self.M[j, :3, 3]
+            p[j] = pp + _right(Rp, self.M[j, :3, 3])
             if self.kind[j] == "prismatic":
-                R[:, j] = A
-                p[:, j] += (self.scaling[j] * q[:, self.idx_q[j]] + self.offset[j])[:, None] * (A @ self.axis[j])
+                R[j] = A
+                p[j] += (self.scaling[j] * q[:, self.idx_q[j]] + self.offset[j])[:, None] * _right(A, self.axis[j])
                 continue
             if self.kind[j] == "fixed":
-                R[:, j] = A
+                R[j] = A
                 continue
             if self.kind[j] == "continuous":
                 c, s = q[:, self.idx_q[j]], q[:, self.idx_q[j] + 1]
             else:
                 th = self.scaling[j] * q[:, self.idx_q[j]] + self.offset[j]
                 c, s = np.cos(th), np.sin(th)
-            R[:, j] = A + s[:, None, None] * _right(A, self.K[j]) + (1 - c)[:, None, None] * _right(A, self.KK[j])
+            # two products, not one with [K | K^2]: the halves of that would be strided, and numpy's
+            # elementwise loops over rows of 3 cost more than the second product
+            R[j] = A + s[:, None, None] * _right(A, self.K[j]) + (1 - c)[:, None, None] * _right(A, self.KK[j])
         return R, p
 
     def world_jacobian(self, R: np.ndarray, p: np.ndarray) -> np.ndarray:
         """Pinocchio's world joint Jacobian ``J`` (F, 6, nv (extended)) from :meth:`placements`: per joint
         column, the linear velocity of the point at the world origin and the angular velocity, as
         ``computeJointJacobians`` gives it."""
-        F = len(R)
-        J = np.zeros((F, 6, self.nvx))
+        F = R.shape[1]
+        J = np.zeros((6, self.nvx, F))  # frames innermost: each entry's row of frames is contiguous
         for j in range(1, len(self.parents)):
             if self.kind[j] == "fixed":
                 continue
-            w = self.scaling[j] * R[:, j] @ self.axis[j]  # (F, 3) axis in world axes
+            w = _right(self.scaling[j] * R[j], self.axis[j]).T  # (3, F) axis in world axes
             if self.kind[j] == "prismatic":
-                J[:, :3, self.col[j]] = w
+                J[:3, self.col[j]] = w
             else:
-                o, c = p[:, j], self.col[j]
-                J[:, 0, c] = o[:, 1] * w[:, 2] - o[:, 2] * w[:, 1]
-                J[:, 1, c] = o[:, 2] * w[:, 0] - o[:, 0] * w[:, 2]
-                J[:, 2, c] = o[:, 0] * w[:, 1] - o[:, 1] * w[:, 0]
-                J[:, 3:, c] = w
-        return J
+                o, c = p[j].T, self.col[j]
+                J[0, c] = o[1] * w[2] - o[2] * w[1]
+                J[1, c] = o[2] * w[0] - o[0] * w[2]
+                J[2, c] = o[0] * w[1] - o[1] * w[0]
+                J[3:, c] = w
+        return J.transpose(2, 0, 1)
 
 
 def _right(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """A @ B for a stack A (F, 3, 3) and one B (3, 3), as one (3F, 3) x (3, 3) product."""
-    return (A.reshape(-1, 3) @ B).reshape(A.shape)
+    """A @ B for a stack A (F, 3, 3) and one B (3, 3) or (3,), as one (3F, 3) x (3, 3) (or x (3,)) product:
+    numpy's stacked matmul makes one BLAS call per matrix of the stack, which cost more than the
+    products for the thousands of configurations of a branch search (the same sums, the same bits)."""
+    return (A.reshape(-1, 3) @ B).reshape(A.shape[:-1] + B.shape[1:])
 
 
 def _check_supported_joints(model, path) -> None:

@@ -31,10 +31,14 @@ def _normal_equations(view: _View, jac: np.ndarray, y: np.ndarray, res: np.ndarr
     if len(view.S) == 1 and isinstance(view, _View):
         # one view for every frame: d prediction / d point is one (D, 3) matrix, applied to all the
         # point Jacobians in a single product rather than one tiny product per point and frame
-        Jq = np.moveaxis(np.tensordot(view.matrices()[0], jac, axes=([1], [2])), 0, 2)
+        M = view.S[0] * view.R[0, :D]  # the view's s R[:D] (view.matrices() makes it once per frame)
+        # np.tensordot's own steps (the 3-axis first, one product) without its Python overhead
+        Jq = np.dot(M, jac.transpose(2, 0, 1, 3).reshape(3, -1)).reshape(D, F, J, -1).transpose(1, 2, 0, 3)
     else:
-        Jq = view.derivatives(y)[0] @ jac
-    Jq = (Jq * free[:, None, None, :]).reshape(F, J * D, -1)
+        Jq = view.derivatives(y)[0] @ np.ascontiguousarray(jac)  # C-ordered: the layout BLAS was given
+    # the mask only where a direction is held (a product by ones is the same numbers, at a cost), and
+    # as floats: a bool operand made numpy cast it element by element
+    Jq = (Jq if free.all() else Jq * free.astype(float)[:, None, None, :]).reshape(F, J * D, -1)
     # batched products over the stacked (point, axis) rows: einsum's three-operand loops were the
     # solver's main cost after the kinematics
     JqW = (Jq * np.repeat(ww, D, axis=1)[..., None]).transpose(0, 2, 1)
@@ -120,14 +124,15 @@ def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.
         return ab
 
     def evaluate(q, view):
-        pos, jac = robot.jacobians(q)
-        pred, y = view.apply(pos)
+        placed = robot.placed(q)  # the Jacobians only of the step taken (at the next iteration)
+        pred, y = view.apply(placed.pos)
         res = pred - tz
-        return pos, jac, y, res, _smoothed_objective(prior, robot.angles(q), np.linalg.norm(res, axis=-1), w, delta)
+        return placed, y, res, _smoothed_objective(prior, robot.angles(q), np.linalg.norm(res, axis=-1), w, delta)
 
-    pos, jac, y, res, cost = evaluate(q, view)
+    placed, y, res, cost = evaluate(q, view)
     lam, converged, it = 1e-4, False, 0
     for it in range(1, max_iter + 1):
+        jac = robot.jacobians_of(placed)
         ww = w * _huber(np.linalg.norm(res, axis=-1), delta)[1]
         Hqq, Hqc, gq, Hcc, gc = _normal_equations(view, jac, y, res, ww, free, free_view)
         gq = gq.reshape(-1) + prior @ robot.angles(q).reshape(-1)  # angles (F, nv): q itself without continuous joints
@@ -151,12 +156,12 @@ def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.
             break
         rel = (cost - trial[-1]) / max(cost, 1e-300)
         q, view = q_t, v_t
-        pos, jac, y, res, cost = trial
+        placed, y, res, cost = trial
         lam = max(lam / 5, 1e-12)
         if rel < tol or cost < 1e-24:
             converged = True
             break
-    return q, view, np.linalg.norm(res, axis=-1), pos, np.full(F, converged), it
+    return q, view, np.linalg.norm(res, axis=-1), placed.pos, np.full(F, converged), it
 
 
 def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
@@ -194,12 +199,13 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
     q = q.copy()
 
     def evaluate(qa, va, a):
-        pos, jac = robot.jacobians(qa)
-        pred, y = va.apply(pos)
+        placed = robot.placed(qa)  # the Jacobians only of the rows that step on (below)
+        pred, y = va.apply(placed.pos)
         res = pred - tz[a]
-        return pos, jac, y, res, (w[a] * _huber(np.linalg.norm(res, axis=-1), delta)[0]).sum(1)
+        return placed, y, res, (w[a] * _huber(np.linalg.norm(res, axis=-1), delta)[0]).sum(1)
 
-    pos, jac, y, res, cost = evaluate(q, view, np.arange(F))
+    placed, y, res, cost = evaluate(q, view, np.arange(F))
+    pos, jac = placed.pos, robot.jacobians_of(placed)
     lam = np.full(F, 1e-4)
     active = np.ones(F, bool)
     it = 0
@@ -217,7 +223,7 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
             if Hcc is None:  # the view held: frame by frame, no view step
                 dq = -np.linalg.solve(Hq, gq[..., None])[..., 0] * free[a]
                 q_t, v_t = robot.integrate(q[a], dq), va
-                p_t, j_t, y_t, r_t, c_t = evaluate(q_t, v_t, a)
+                pl_t, y_t, r_t, c_t = evaluate(q_t, v_t, a)
                 better = c_t <= cost[a]
                 break
             dc_diag = np.einsum("cdd->cd", Hcc)
@@ -231,7 +237,7 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
             dc = -np.linalg.solve(schur, rhs[..., None])[..., 0] * free_view
             dq = -(np.einsum("fvu,fu->fv", Hq_inv, gq) + np.einsum("fvc,fc->fv", K, dc[va.cam_of])) * free[a]
             q_t, v_t = robot.integrate(q[a], dq), va.moved(dc)
-            p_t, j_t, y_t, r_t, c_t = evaluate(q_t, v_t, a)
+            pl_t, y_t, r_t, c_t = evaluate(q_t, v_t, a)
             better = c_t <= cost[a] if independent else np.full(len(a), c_t.sum() <= cost[a].sum())
             if better.any():
                 break
@@ -243,8 +249,7 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
         rel = (cost[b] - c_t[better]) / np.maximum(cost[b], 1e-300)
         if not independent:
             rel = np.full(len(b), (cost[b].sum() - c_t.sum()) / max(cost[b].sum(), 1e-300))
-        q[b], pos[b], jac[b], y[b], res[b], cost[b] = q_t[better], p_t[better], j_t[better], y_t[better], \
-            r_t[better], c_t[better]
+        q[b], pos[b], y[b], res[b], cost[b] = q_t[better], pl_t.pos[better], y_t[better], r_t[better], c_t[better]
         view = view.put(a, v_t, better)
         lam[b] = np.maximum(lam[b] / 5, 1e-12)
         lam[a[~better]] *= 10
@@ -257,12 +262,15 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
         if problem is not None and it in (3, 6, 10, 15, 21):
             # starts of one problem that have met (within a micro-radian) go on as one: a branch
             # search's many starts fall into a few basins
-            a = np.flatnonzero(active)
-            _, first, inv = np.unique(np.column_stack([problem[a], np.round(q[a], 6)]), axis=0, return_index=True,
-                                      return_inverse=True)
-            lead = a[first][inv.reshape(-1)]
-            follow[a] = lead
-            active[a[lead != a]] = False
+            live = np.flatnonzero(active)
+            _, first, inv = np.unique(np.column_stack([problem[live], np.round(q[live], 6)]), axis=0,
+                                      return_index=True, return_inverse=True)
+            lead = live[first][inv.reshape(-1)]
+            follow[live] = lead
+            active[live[lead != live]] = False
+        on = better & active[a]  # rows that took a step and go on: their Jacobians at the new q
+        if on.any():
+            jac[a[on]] = robot.jacobians_of(pl_t, slice(None) if on.all() else np.flatnonzero(on))
         if not active.any():
             break
     if problem is not None:

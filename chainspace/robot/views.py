@@ -35,10 +35,13 @@ def similarity_align(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | Non
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
-    """(..., 3) -> (..., 3, 3) cross-product matrices."""
-    z = np.zeros(v.shape[:-1])
+    """(..., 3) -> (..., 3, 3) cross-product matrices (entries written in place: nested np.stack
+    cost more than the products the solvers make with them)."""
+    out = np.zeros(v.shape[:-1] + (3, 3))
     x, y, w = v[..., 0], v[..., 1], v[..., 2]
-    return np.stack([np.stack([z, -w, y], -1), np.stack([w, z, -x], -1), np.stack([-y, x, z], -1)], -2)
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -w, y, -x
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = w, -y, x
+    return out
 
 
 def _rotvec(w: np.ndarray) -> np.ndarray:
@@ -109,7 +112,8 @@ class _View:
     def apply(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(prediction (F, J, D), rotated points y = R x (F, J, 3))."""
         c = self.cam_of
-        y = np.einsum("fij,fkj->fki", self.R[c], x)
+        # one view for all frames: its rotation as one operand, not gathered once per frame
+        y = np.einsum("ij,fkj->fki", self.R[0], x) if len(self.S) == 1 else np.einsum("fij,fkj->fki", self.R[c], x)
         D = self.T.shape[1]
         return self.S[c][:, None, None] * y[..., :D] + self.T[c][:, None], y
 
