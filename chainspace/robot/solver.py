@@ -239,12 +239,26 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
     pos, jac = placed.pos, robot.jacobians_of(placed)
     lam = np.full(F, 1e-4)
     active = np.ones(F, bool)
+    held_view = not free_view.any()
+    if held_view:
+        # the view held: each row's normal equations depend on its own q alone, so a row whose last step
+        # was rejected (about a third of a branch search's rows late in its run) keeps them, unchanged
+        Hqq_all, gq_all, stale = np.empty((F, nv, nv)), np.empty((F, nv)), np.ones(F, bool)
     it = 0
     for it in range(1, max_iter + 1):
         a = np.flatnonzero(active)
         va = view.take(a)
-        ww = w[a] * _huber(np.linalg.norm(res[a], axis=-1), delta)[1]
-        Hqq, Hqc, gq, Hcc, gc = _normal_equations(va, jac[a], y[a], res[a], ww, free[a], free_view)
+        if held_view:
+            s = a[stale[a]]
+            if len(s):
+                ww = w[s] * _huber(np.linalg.norm(res[s], axis=-1), delta)[1]
+                Hqq_all[s], _, gq_all[s], _, _ = _normal_equations(view.take(s), jac[s], y[s], res[s], ww, free[s],
+                                                                   free_view)
+                stale[s] = False
+            Hqq, Hqc, gq, Hcc, gc = Hqq_all[a], None, gq_all[a], None, None
+        else:
+            ww = w[a] * _huber(np.linalg.norm(res[a], axis=-1), delta)[1]
+            Hqq, Hqc, gq, Hcc, gc = _normal_equations(va, jac[a], y[a], res[a], ww, free[a], free_view)
         Ca = len(va.S)
         dq_diag = np.einsum("fvv->fv", Hqq)
         floor_q = 1e-6 * dq_diag.mean(1, keepdims=True) + 1e-30
@@ -282,6 +296,8 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
             rel = np.full(len(b), (cost[b].sum() - c_t.sum()) / max(cost[b].sum(), 1e-300))
         q[b], pos[b], y[b], res[b], cost[b] = q_t[better], pl_t.pos[better], y_t[better], r_t[better], c_t[better]
         view = view.put(a, v_t, better)
+        if held_view:
+            stale[b] = True
         lam[b] = np.maximum(lam[b] / 5, 1e-12)
         lam[a[~better]] *= 10
         done = (rel < tol) | (cost[b] < 1e-24)
