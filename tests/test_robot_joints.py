@@ -265,3 +265,24 @@ def test_repeated_and_meeting_starts_are_solved_once_with_the_same_answers():
         assert np.allclose(rn[i], alone[k][2][0], atol=1e-3)  # px
         assert np.allclose(pos[i], robot.positions(q[i])[0], atol=1e-12)
     assert np.array_equal(q[8], q[0]) and np.array_equal(q[9], q[5]) and np.array_equal(q[10], q[5])
+
+
+def test_row_groups_are_np_uniques_groups_in_its_order():
+    """The solver's grouping of equal rows (a hash of the bytes, checked) gives np.unique's first
+    occurrences, order and labels, with -0.0 and 0.0 one value as numpy compares them; rows it cannot
+    hash as numbers (NaN) go to np.unique itself."""
+    from chainspace.robot.solver import _row_groups
+
+    rng = np.random.default_rng(0)
+    base = np.round(rng.normal(size=(40, 9)), 1)
+    key = base[rng.integers(0, 40, 300)]
+    key[::7, 3], key[::5, 3] = -0.0, 0.0
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    f, i = _row_groups(key)
+    assert len(first) < len(key) and np.array_equal(f, first) and np.array_equal(i, inverse.reshape(-1))
+    f, i = _row_groups(key, ordered=False)  # the same groups, each row with its group's first occurrence
+    assert np.array_equal(np.sort(f), np.sort(first)) and np.array_equal(f[i], first[inverse.reshape(-1)])
+    key[3, 0] = np.nan
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    f, i = _row_groups(key)
+    assert np.array_equal(f, first) and np.array_equal(i, inverse.reshape(-1))

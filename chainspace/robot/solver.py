@@ -56,6 +56,37 @@ def _normal_equations(view: _View, jac: np.ndarray, y: np.ndarray, res: np.ndarr
     return Hqq, Hqc, gq, Hcc, gc
 
 
+def _row_groups(key: np.ndarray, ordered: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """(first, inverse) of the equal rows of key (N, M), as ``np.unique(key, axis=0, return_index=True,
+    return_inverse=True)[1:]`` gives them: the index of each distinct row's first occurrence, in
+    lexicographic order of the rows (``ordered``; else in an order of no meaning), and each row's
+    group.
+
+    Why: np.unique sorts the rows as records, comparing field by field, which cost a branch search
+    more than its linear algebra of small problems; here a 64-bit hash of each row's bytes is sorted
+    instead, every row checked equal to its group's first (else np.unique decides), and only the
+    distinct rows sorted lexicographically. The same groups, the same order, the same bits after."""
+    k = np.ascontiguousarray(key, dtype=float) + 0.0  # -0.0 -> 0.0: rows equal as numbers, equal as bytes
+    u = k.view(np.uint64)
+    h = np.zeros(len(k), np.uint64)
+    mult, shift = np.uint64(0x9E3779B97F4A7C15), np.uint64(29)
+    for j in range(k.shape[1]):  # a multiplicative hash, column after column (wrapping uint64 arithmetic)
+        h ^= u[:, j]
+        h *= mult
+        h ^= h >> shift
+    _, first, inverse = np.unique(h, return_index=True, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    if not (k == k[first][inverse]).all():  # a collision (or NaN): the record sort decides
+        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        return first, inverse.reshape(-1)
+    if ordered:
+        order = np.lexsort(k[first].T[::-1])
+        rank = np.empty_like(order)
+        rank[order] = np.arange(len(order))
+        first, inverse = first[order], rank[inverse]
+    return first, inverse
+
+
 def _beyond_sightings(unseen: np.ndarray) -> np.ndarray:
     """(F-1, nv) steps between frames f and f+1 that lie before the first or after the last frame in
     which each direction is seen (``unseen`` (F, nv): :func:`_unseen`); False for directions never seen."""
@@ -183,13 +214,13 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
         # the frames are independent problems: rows that repeat one (same start, target, weights and
         # free directions; a branch search starts several ways that often meet) are solved once
         key = np.concatenate([np.round(q, 9), tz.reshape(F, -1), w, free], 1)
-        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        first, inverse = _row_groups(key, ordered=False)
         if len(first) < 0.95 * F:
-            inverse = inverse.reshape(-1)
+            first, inverse = _row_groups(key)  # np.unique's order: the rows as the solves saw them
             q1, _, rn1, pos1, conv1, it1 = _sequence_lm(robot, q[first], target[first], w[first], view.take(first),
                                                         free[first], free_view, max_iter, tol, delta)
             return q1[inverse], view, rn1[inverse], pos1[inverse], conv1[inverse], it1
-        problem = np.unique(key[:, q.shape[1]:], axis=0, return_inverse=True)[1].reshape(-1)
+        problem = _row_groups(key[:, q.shape[1]:], ordered=False)[1]
     else:
         problem = None
     follow = np.arange(F)  # a row that met another row of the same problem follows it from there on
@@ -208,12 +239,26 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
     pos, jac = placed.pos, robot.jacobians_of(placed)
     lam = np.full(F, 1e-4)
     active = np.ones(F, bool)
+    held_view = not free_view.any()
+    if held_view:
+        # the view held: each row's normal equations depend on its own q alone, so a row whose last step
+        # was rejected (about a third of a branch search's rows late in its run) keeps them, unchanged
+        Hqq_all, gq_all, stale = np.empty((F, nv, nv)), np.empty((F, nv)), np.ones(F, bool)
     it = 0
     for it in range(1, max_iter + 1):
         a = np.flatnonzero(active)
         va = view.take(a)
-        ww = w[a] * _huber(np.linalg.norm(res[a], axis=-1), delta)[1]
-        Hqq, Hqc, gq, Hcc, gc = _normal_equations(va, jac[a], y[a], res[a], ww, free[a], free_view)
+        if held_view:
+            s = a[stale[a]]
+            if len(s):
+                ww = w[s] * _huber(np.linalg.norm(res[s], axis=-1), delta)[1]
+                Hqq_all[s], _, gq_all[s], _, _ = _normal_equations(view.take(s), jac[s], y[s], res[s], ww, free[s],
+                                                                   free_view)
+                stale[s] = False
+            Hqq, Hqc, gq, Hcc, gc = Hqq_all[a], None, gq_all[a], None, None
+        else:
+            ww = w[a] * _huber(np.linalg.norm(res[a], axis=-1), delta)[1]
+            Hqq, Hqc, gq, Hcc, gc = _normal_equations(va, jac[a], y[a], res[a], ww, free[a], free_view)
         Ca = len(va.S)
         dq_diag = np.einsum("fvv->fv", Hqq)
         floor_q = 1e-6 * dq_diag.mean(1, keepdims=True) + 1e-30
@@ -251,6 +296,8 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
             rel = np.full(len(b), (cost[b].sum() - c_t.sum()) / max(cost[b].sum(), 1e-300))
         q[b], pos[b], y[b], res[b], cost[b] = q_t[better], pl_t.pos[better], y_t[better], r_t[better], c_t[better]
         view = view.put(a, v_t, better)
+        if held_view:
+            stale[b] = True
         lam[b] = np.maximum(lam[b] / 5, 1e-12)
         lam[a[~better]] *= 10
         done = (rel < tol) | (cost[b] < 1e-24)
@@ -263,9 +310,8 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
             # starts of one problem that have met (within a micro-radian) go on as one: a branch
             # search's many starts fall into a few basins
             live = np.flatnonzero(active)
-            _, first, inv = np.unique(np.column_stack([problem[live], np.round(q[live], 6)]), axis=0,
-                                      return_index=True, return_inverse=True)
-            lead = live[first][inv.reshape(-1)]
+            first, inv = _row_groups(np.column_stack([problem[live], np.round(q[live], 6)]), ordered=False)
+            lead = live[first][inv]
             follow[live] = lead
             active[live[lead != live]] = False
         on = better & active[a]  # rows that took a step and go on: their Jacobians at the new q
