@@ -720,6 +720,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     # the weak fit's ambiguities are perspective's to settle: its own (trust) notes replace them
     msg = "; ".join(m for m in weak_msg.split("; ") if not m.startswith(
         ("ambiguous: ", "poor fit: ", "uncertain: ")))
+    observable, relative, msg = _pinhole_observability(robot, weak, best, msg)
     tie_note = "; the motion and its mirror image fit the data equally well (weak perspective)"
     if tie_note in msg:
         cut = msg.index(tie_note)
@@ -739,12 +740,31 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         warnings.warn(f"fit_joint_angles: {msg}", ConvergenceWarning, stacklevel=2)
     timings["total"] = time.perf_counter() - t0
     return JointFit(
-        q=q, joint_names=weak.joint_names, observable=weak.observable, positions=positions,
+        q=q, joint_names=weak.joint_names, observable=observable, positions=positions,
         residual_3d=residual_3d, residual_px=residual_px, converged=converged, scale=float(s), rotation=R,
         translation=t, cameras=cams, translations_2d=ts2, chain=chain, urdf_path=urdf, message=msg,
-        n_iter=int(weak.n_iter + best["n_iter"]), relative=weak.relative, tracks=tracks, confidence=confidence,
+        n_iter=int(weak.n_iter + best["n_iter"]), relative=relative, tracks=tracks, confidence=confidence,
         positions_base=pos_base, input_poses=poses, timings=timings, intrinsics=cam,
         camera_pose=(view.R[0].copy(), view.t[0].copy()), focal_px=focal, focal_std_px=focal_std,
         q_std=trust["q_std"], noise_px=trust["noise_px"], alternatives=trust["alternatives"],
         ambiguous=trust["ambiguous"], joint_reasons=trust["reasons"],
     )
+
+
+def _pinhole_observability(robot: RobotKinematics, weak: JointFit, best: dict,
+                           msg: str) -> tuple[np.ndarray, np.ndarray, str]:
+    """``observable``, ``relative`` (nv,) and the message of a perspective fit, from the joints its
+    start held (:func:`chainspace.robot.perspective._pinhole_gauge`: blind ones at rest, structural
+    gauges at rest in frame 0) rather than the weak fit's; ``msg`` (the weak fit's notes) with the weak
+    fit's observability notes replaced by the perspective fit's own.
+
+    Why: the weak fit also holds a joint that its configuration makes a gauge, which a static pinhole
+    camera sees; the perspective fit then fits it in every frame, and reporting it as seen only
+    relative to frame 0 would compare and judge it as what it is not."""
+    st = best["start"]
+    blind = np.asarray(st["blind"], bool)
+    gauge = np.asarray(st["gauge"], bool) & ~blind
+    weak_notes = _notes(robot, ~weak.observable & ~weak.relative, weak.relative & ~weak.observable, False)
+    notes = _notes(robot, blind, gauge, False)
+    kept = [m for m in msg.split("; ") if m and m not in weak_notes and m != "all joints observable"]
+    return ~(blind | gauge), gauge.copy(), "; ".join(notes + kept) or "all joints observable"

@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from .kinematics import RobotKinematics, _rest_distance, _wrapped
+from .observability import _hold, _structural
 from .solver import _huber, _motion_prior, _noise_sigma, _normal_equations, _sequence_lm, _smooth_lm, \
     _smoothed_objective
 from .views import _PinholeView, _camera_view, _pinhole_from_weak
@@ -117,6 +118,25 @@ def _searched_start(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: n
         return None
     q, pv = found
     return q, _PinholeView(pv.R, pv.t, pv.f, pv.c, pv.cam_of, view.fit_focal)
+
+
+def _pinhole_gauge(robot: RobotKinematics, st: dict, w: np.ndarray, unseen: np.ndarray) -> dict:
+    """The weak-perspective start ``st`` held as a static pinhole camera sees it: a joint held at rest
+    in frame 0 (seen only relative to it) only where it is a structural gauge
+    (:func:`chainspace.robot.observability._structural`: a change of view imitates it at every
+    configuration), with ``q``, ``free``, ``free_prior`` and ``gauge`` recomputed so.
+
+    Why: the weak fit also holds a joint that its configuration makes a gauge (the 3D fit's, and its
+    affine camera's), and a static pinhole camera sees it. The double pendulum (its base point 35 mm off
+    joint1's axis): joint1 held in frame 0, so a start whose frame 0 was off could not be corrected
+    there, and the fit ended tens of degrees off, reported as seen only relative to frame 0."""
+    gauge = _structural(robot, w)[1] & ~st["blind"]
+    never = unseen & unseen.all(0)
+    q, free = _hold(robot, st["q"], st["blind"], gauge, False, unseen)
+    free_prior = _hold(robot, st["q"], st["blind"], gauge, False, never)[1]
+    if (gauge == st["gauge"]).all() and (free == st["free"]).all() and (free_prior == st["free_prior"]).all():
+        return st  # held as the pinhole holds it already (a base point on the first axis: the arms)
+    return dict(st, q=q, free=free, free_prior=free_prior, gauge=gauge)
 
 
 def _camera_covariance(robot: RobotKinematics, q: np.ndarray, view: _PinholeView, tracks: np.ndarray,
@@ -261,6 +281,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     # every start through the camera stage (the first over the focal guesses; the others reuse its focal),
     # then the weak fit's winner and the others of lowest cost there refined in full (MAX_STARTS in all)
     # each start also turned about the first joint's axis: the weak camera's guess of how far round it stands
+    starts = [_pinhole_gauge(robot, st, w, unseen) for st in starts]
     given = [st["q"] for st in starts]
     starts = list(starts) + [dict(st, q=q, view=_camera_view(robot.positions(q), tr, w, False), turn_of=st)
                              for st in starts for q in _base_turns(robot, st["q"])]
