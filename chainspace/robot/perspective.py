@@ -45,7 +45,9 @@ MAX_STARTS = 3
 # the camera is also searched without weak perspective (:func:`_searched_start`) when the best fit from
 # the weak starts leaves squared residuals above this many times what the tracks' jitter allows: the
 # milling arm at close range (nearest point 0.3 m from a 90-degree lens, 300 frames) ended at 8 times,
-# with its wrist on a wrong path; a fit at the noise is near 1 (chi-square over thousands of residuals)
+# with its wrist on a wrong path; a fit at the noise is near 1 (chi-square over thousands of residuals).
+# It is also searched when the best fit beats weak perspective's by more than LR_MARGIN noise variances:
+# perspective is then measurable, and the weak starts may all lie in another motion's basin
 SEARCH_ABOVE_NOISE = 2.0
 
 
@@ -93,24 +95,33 @@ def _pnp_camera(x: np.ndarray, tracks: np.ndarray, w: np.ndarray, f: float, c: n
 
 
 def _searched_start(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: np.ndarray, st: dict,
-                    K: np.ndarray | None, n_obs: int) -> tuple[np.ndarray, _PinholeView] | None:
+                    K: np.ndarray | None, n_obs: int, weak_sse: float) -> tuple[np.ndarray, _PinholeView] | None:
     """A start owing nothing to weak perspective (:func:`chainspace.robot.pinhole_start.pinhole_start`:
     the camera searched on a few frames, every frame's joints by IK under it), when the best fit from
     the weak starts leaves squared residuals above :data:`SEARCH_ABOVE_NOISE` times what the tracks' own
     jitter (:func:`chainspace.robot.uncertainty.track_jitter`; on exact tracks, a twentieth of the weak
-    fit's image-size tolerance ``px_floor``) allows; else None. With the focal unknown the search uses
-    the best fit's. Returns (q (F, nq), camera) for the refinement.
+    fit's image-size tolerance ``px_floor``) allows, or beats weak perspective's squared residuals
+    ``weak_sse`` by more than :data:`LR_MARGIN` jitter variances; else None. With the focal unknown the
+    search uses the best fit's. Returns (q (F, nq), camera) for the refinement.
 
-    Why only then: where the weak starts serve (far views) the fit is at the noise already, and the
-    search costs seconds (the milling arm at close range, 300 frames: 9-12 s of CPU against 211 s for the
-    perspective refinement of the weak starts)."""
+    Why only then: where the weak starts serve (far views) the fit is at the noise already and no
+    better than weak perspective's, and the search costs seconds (the milling arm at close range, 300
+    frames: 9-12 s of CPU against 211 s for the perspective refinement of the weak starts).
+    Why also where perspective is measurable: the weak fit's motion is then no longer the pinhole's, and
+    every weak start can lie in another motion's basin. The double pendulum (one moving point, on
+    joint1's circle; synthesize's pinhole camera, K known, 30 frames, seed 39): joint1 60 degrees RMS
+    off from the weak starts, unflagged (:func:`_pinhole_gauge` applied); 0.2 degrees from this start."""
     from .pinhole_start import pinhole_start
     from .uncertainty import track_jitter
 
     jitter = track_jitter(tracks, w)
     # exact tracks: a twentieth of the weak fit's image-size tolerance, as its ties have it
     noise = max(jitter, 0.05 * st["px_floor"])
-    if not np.isfinite(jitter) or best["sse"] <= SEARCH_ABOVE_NOISE * n_obs * noise ** 2:
+    if not np.isfinite(jitter):
+        return None
+    poor = best["sse"] > SEARCH_ABOVE_NOISE * n_obs * noise ** 2
+    measurable = weak_sse - best["sse"] > LR_MARGIN * noise ** 2
+    if not (poor or measurable):
         return None
     view = best["view"]
     found = pinhole_start(robot, tracks, w, st["free"], st["gauge"], view.K if K is None else K)
@@ -304,7 +315,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
                 n_iter += it
         fits += finish(q, pv, st, n_iter)
     contend([])
-    searched = _searched_start(robot, fits[0], tr, w, starts[0], K, n_obs)
+    searched = _searched_start(robot, fits[0], tr, w, starts[0], K, n_obs, weak_sse)
     if searched is not None:  # one more contender, on the objective like the others
         contend(finish(*searched, starts[0], 0))
     # (the given starts only: a turned start's tails beyond the first joint are its original's)

@@ -165,9 +165,10 @@ def search_camera(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, fre
     robot's root on its track at :data:`DEPTH_FACTORS` times the depth its image size suggests, ranked
     by IK on the frames from one seed (all candidates in one batched solve); the :data:`N_REFINED`
     best then get IK from many seeds (:func:`_multi_seed_ik`) and the camera is fitted with the joints
-    (robust loss: a frame left on a wrong branch does not pull the camera off). The grid's spacing
-    (about 30 degrees) is within that fit's reach: the milling arm at close range, from the true
-    camera turned 30 degrees about random axes, returned to it in 6 of 6 trials."""
+    (robust loss: a frame left on a wrong branch does not pull the camera off); of those, the lowest
+    cost is kept. The grid's spacing (about 30 degrees) is within that fit's reach: the milling arm at
+    close range, from the true camera turned 30 degrees about random axes, returned to it in 6 of 6
+    trials."""
     f, c = float(K[0, 0]), K[:2, 2]
     x_rest = robot.positions(robot.q_rest)[0]
     seen = w > 0
@@ -191,9 +192,9 @@ def search_camera(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, fre
     rn = _sequence_lm(robot, q, uz[idx], w[idx], cams, free[idx], np.zeros(6, bool), 30, 1e-6, None)[2]
     cost = _cost(rn.reshape(n_c, n_f, -1), w[frames][None])
     extent = float(max(np.ptp(uz[..., 0][seen]), np.ptp(uz[..., 1][seen])))
-    # a candidate whose frames fit to within twice the tracks' jitter (per coordinate) ends the search
-    jitter = track_jitter(tracks, w)
-    enough = 2 * (2 * jitter) ** 2 if np.isfinite(jitter) else 0.0
+    # every one of them refined, the best kept: where few tracked points move (the double pendulum: one),
+    # a candidate can fit the search's few frames within the noise and still be another motion's camera,
+    # so the first one within the noise ends nothing
     best = None
     for j in np.argsort(cost)[:N_REFINED]:
         view = _PinholeView(Rs[j][None].copy(), ts[j][None].copy(), f, c, np.zeros(n_f, int))
@@ -203,8 +204,6 @@ def search_camera(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, fre
         cj = float(_cost(rnj[None], w[frames][None])[0])
         if view.apply(robot.positions(qj))[1][..., 2].min() > 0 and (best is None or cj < best[0]):
             best = (cj, view, qj)
-            if cj <= enough:
-                break
     return best
 
 
