@@ -49,6 +49,10 @@ MAX_STARTS = 3
 # It is also searched when the best fit beats weak perspective's by more than LR_MARGIN noise variances:
 # perspective is then measurable, and the weak starts may all lie in another motion's basin
 SEARCH_ABOVE_NOISE = 2.0
+# a searched camera this close to the winner's (rotation, and depth of the robot's root as a fraction)
+# is the winner's own view: refining it would only find the winner again (:func:`_same_view`)
+SAME_VIEW_DEG = 10.0
+SAME_VIEW_DEPTH = 0.05
 
 
 def _robust(rn: np.ndarray, w: np.ndarray, delta: float | None) -> float:
@@ -129,6 +133,20 @@ def _searched_start(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: n
         return None
     q, pv = found
     return q, _PinholeView(pv.R, pv.t, pv.f, pv.c, pv.cam_of, view.fit_focal)
+
+
+def _same_view(robot: RobotKinematics, a: _PinholeView, b: _PinholeView) -> bool:
+    """Whether two static pinhole cameras see the robot alike: rotations within :data:`SAME_VIEW_DEG`
+    of each other and the robot's root at depths within :data:`SAME_VIEW_DEPTH` of each other.
+
+    Why: the searched start (:func:`_searched_start`) costs a full refinement; where its camera is the
+    winner's own, the refinement only finds the winner again."""
+    cos = (np.trace(a.R[0].T @ b.R[0]) - 1.0) / 2.0
+    if np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) > SAME_VIEW_DEG:
+        return False
+    root = robot.positions(robot.q_rest)[0, robot.chain.joint_index(robot.chain.root)]
+    za, zb = a.R[0, 2] @ root + a.t[0, 2], b.R[0, 2] @ root + b.t[0, 2]
+    return bool(abs(za - zb) <= SAME_VIEW_DEPTH * max(abs(zb), 1e-12))
 
 
 def _pinhole_gauge(robot: RobotKinematics, st: dict, w: np.ndarray, unseen: np.ndarray) -> dict:
@@ -316,7 +334,8 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
         fits += finish(q, pv, st, n_iter)
     contend([])
     searched = _searched_start(robot, fits[0], tr, w, starts[0], K, n_obs, weak_sse)
-    if searched is not None:  # one more contender, on the objective like the others
+    # one more contender, on the objective like the others (not where it is the winner's own view)
+    if searched is not None and not _same_view(robot, searched[1], fits[0]["view"]):
         contend(finish(*searched, starts[0], 0))
     # (the given starts only: a turned start's tails beyond the first joint are its original's)
     grafted = _grafted(robot, fits[0], given + [r["q"] for r in fits[1:]], tr, w)
