@@ -105,8 +105,9 @@ def _searched_start(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: n
     the weak starts leaves squared residuals above :data:`SEARCH_ABOVE_NOISE` times what the tracks' own
     jitter (:func:`chainspace.robot.uncertainty.track_jitter`; on exact tracks, a twentieth of the weak
     fit's image-size tolerance ``px_floor``) allows, or beats weak perspective's squared residuals
-    ``weak_sse`` by more than :data:`LR_MARGIN` jitter variances; else None. With the focal unknown the
-    search uses the best fit's. Returns (q (F, nq), camera) for the refinement.
+    ``weak_sse`` by more than :data:`LR_MARGIN` jitter variances; else None, and None where the searched
+    camera is the best fit's own (:func:`_same_view`). With the focal unknown the search uses the best
+    fit's. Returns (q (F, nq), camera) for the refinement.
 
     Why only then: where the weak starts serve (far views) the fit is at the noise already and no
     better than weak perspective's, and the search costs seconds (the milling arm at close range, 300
@@ -128,7 +129,9 @@ def _searched_start(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: n
     if not (poor or measurable):
         return None
     view = best["view"]
-    found = pinhole_start(robot, tracks, w, st["free"], st["gauge"], view.K if K is None else K)
+    # the winner's own camera found again: refining its start would only find the winner again
+    found = pinhole_start(robot, tracks, w, st["free"], st["gauge"], view.K if K is None else K,
+                          lambda pv: _same_view(robot, pv, view))
     if found is None:
         return None
     q, pv = found
@@ -139,8 +142,9 @@ def _same_view(robot: RobotKinematics, a: _PinholeView, b: _PinholeView) -> bool
     """Whether two static pinhole cameras see the robot alike: rotations within :data:`SAME_VIEW_DEG`
     of each other and the robot's root at depths within :data:`SAME_VIEW_DEPTH` of each other.
 
-    Why: the searched start (:func:`_searched_start`) costs a full refinement; where its camera is the
-    winner's own, the refinement only finds the winner again."""
+    Why: the searched start (:func:`_searched_start`) costs IK in every frame and a full refinement;
+    where its camera is the winner's own, they only find the winner again (the milling arm, K known,
+    100 frames, seed 0: the search's camera 0.2 degrees from the winner's, at the same depth)."""
     cos = (np.trace(a.R[0].T @ b.R[0]) - 1.0) / 2.0
     if np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) > SAME_VIEW_DEG:
         return False
@@ -334,8 +338,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
         fits += finish(q, pv, st, n_iter)
     contend([])
     searched = _searched_start(robot, fits[0], tr, w, starts[0], K, n_obs, weak_sse)
-    # one more contender, on the objective like the others (not where it is the winner's own view)
-    if searched is not None and not _same_view(robot, searched[1], fits[0]["view"]):
+    if searched is not None:  # one more contender, on the objective like the others
         contend(finish(*searched, starts[0], 0))
     # (the given starts only: a turned start's tails beyond the first joint are its original's)
     grafted = _grafted(robot, fits[0], given + [r["q"] for r in fits[1:]], tr, w)
