@@ -108,14 +108,19 @@ the perspective fit starts from the weak fit's winner *and* its distinct alterna
 the reflection about the symmetry plane): each through the camera stage, the winner and the two
 others that fit best there refined in full (``perspective.MAX_STARTS``), and the lowest perspective
 objective wins. Where the best of them leaves squared residuals above twice what the tracks' own
-jitter allows (a robot close to a wide lens, whose weak starts are tens of degrees off), one more start
-competes: the camera searched in full perspective on a few frames and every frame's joints by IK under
-it (:mod:`chainspace.robot.pinhole_start`).
+jitter allows (a robot close to a wide lens, whose weak starts are tens of degrees off), or beats weak
+perspective's by more than 25 jitter variances (perspective measurable: the weak starts may all lie in
+another motion's basin), one more start competes: the camera searched in full perspective on a few
+frames and every frame's joints by IK under it (:mod:`chainspace.robot.pinhole_start`; not where the
+camera it finds is the winner's own).
 The camera-side rule (``view_from``) and the rest-pose rule then decide nothing; ``message`` says
 whether the choice was clear (the objectives more than 25 noise variances apart) or a guess. The
 joints seen only relative to frame 0, and the face-on planes of a wrist, are as above (a turn about
 the base axis is still a turn of the camera; a plane seen face-on is still tilted only to second
-order).
+order), except that a joint is held in frame 0 only where a change of view imitates it at every
+configuration (every tracked base point on its axis): one the weak fit held because of its
+configuration alone (the double pendulum's first joint, its base point off the axis) is fitted in
+every frame and reported observable.
 
 With ``image_size`` and no intrinsics the focal length is fitted too (``log f`` a seventh camera
 parameter; principal point at the image centre; starts at 0.5, 1, 2 and 4 image widths, the camera
