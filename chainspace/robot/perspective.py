@@ -133,7 +133,8 @@ def _searched_start(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: n
     view = best["view"]
     # the winner's own camera found again: refining its start would only find the winner again
     found = pinhole_start(robot, tracks, w, st["free"], st["gauge"], view.K if K is None else K,
-                          lambda pv: _same_view(robot, pv, view))
+                          lambda pv, q, frames: _same_view(robot, pv, view) or _same_view(
+                              robot, pv, _gauge_turned(robot, best["q"][frames], view, st["gauge"], q)))
     if found is None:
         return None
     q, pv = found
@@ -153,6 +154,38 @@ def _same_view(robot: RobotKinematics, a: _PinholeView, b: _PinholeView) -> bool
     root = robot.positions(robot.q_rest)[0, robot.chain.joint_index(robot.chain.root)]
     za, zb = a.R[0, 2] @ root + a.t[0, 2], b.R[0, 2] @ root + b.t[0, 2]
     return bool(abs(za - zb) <= SAME_VIEW_DEPTH * max(abs(zb), 1e-12))
+
+
+def _gauge_turned(robot: RobotKinematics, q: np.ndarray, view: _PinholeView, gauge: np.ndarray,
+                  q_other: np.ndarray) -> _PinholeView:
+    """The camera ``view`` of the motion q (n, nq) turned about the first joint's axis
+    (:func:`chainspace.robot.starts._base_turns`) as far as the gauge joint of q_other (n, nq) differs
+    from q's in the first frame, so that the turned motion projects as q did: the camera of q_other's
+    view of the same motion. ``view`` itself where the gauge (nv,) holds no such joint.
+
+    Why: a gauge joint (a change of view imitates it) is held in frame 0 at the value of its start, and
+    a start turned about the first joint's axis holds it turned, its camera turned to match: the same
+    view, a quarter turn apart. The UR10, K known, 100 frames, seed 0: the winner's joint1 held at -90
+    degrees in frame 0, the searched start's at 0, their cameras 89.7 degrees apart at the same depth;
+    the searched start refined to the winner's objective."""
+    from .views import similarity_align
+
+    if gauge.sum() != 1:
+        return view
+    turn = float(robot.wrap_angles(robot.angles(q_other[:1]) - robot.angles(q[:1]))[0, gauge][0])
+    turned = _base_turns(robot, q, (turn,))
+    if not turned:
+        return view
+    if np.abs(robot.wrap_angles(robot.angles(turned[0][:1]) - robot.angles(q_other[:1]))[0, gauge]).max() > 1e-6:
+        return view  # the joint turned is not the gauge joint
+    pos, pt = robot.positions(q), robot.positions(turned[0])
+    moved = np.linalg.norm(pt - pos, axis=-1) > 1e-9 * robot.reach()
+    if not moved.any():
+        return view
+    _, A, b = similarity_align(np.where(moved[..., None], pos, np.nan), np.where(moved[..., None], pt, np.nan),
+                               scale=False)  # the turn, x_t = A x + b (as candidates._turned_twins)
+    R = view.R[0] @ A.T
+    return _PinholeView(R[None], (view.t[0] - R @ b)[None], view.f, view.c, view.cam_of, view.fit_focal)
 
 
 def _pinhole_gauge(robot: RobotKinematics, st: dict, w: np.ndarray, unseen: np.ndarray) -> dict:

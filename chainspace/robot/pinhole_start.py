@@ -210,7 +210,8 @@ def search_camera(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, fre
 
 def pinhole_start(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, free: np.ndarray,
                   gauge: np.ndarray, K: np.ndarray,
-                  skip: Callable[[_PinholeView], bool] | None = None) -> tuple[np.ndarray, _PinholeView] | None:
+                  skip: Callable[[_PinholeView, np.ndarray, np.ndarray], bool] | None = None
+                  ) -> tuple[np.ndarray, _PinholeView] | None:
     """A perspective start from the tracks alone: the camera of :func:`search_camera` on
     :data:`SEARCH_FRAMES` frames spread over the sequence, then every frame's joints under it: IK from
     many seeds (:func:`_multi_seed_ik`) and along the sequence warm-started from the previous frames
@@ -220,15 +221,16 @@ def pinhole_start(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, fre
 
     tracks (F, J, 2) undistorted, in square pixels (K's fx for both axes); free (F, nv) the directions
     each frame may move; gauge (nv,) the joints a static camera sees only relative to frame 0; skip, if
-    given, a test of the searched camera: True returns None before every frame's IK (a camera the
-    caller has already: :func:`chainspace.robot.perspective._same_view`)."""
+    given, a test of the searched camera, its search frames' joints q (n, nq) and those frames (n,):
+    True returns None before every frame's IK (a view the caller has already:
+    :func:`chainspace.robot.perspective._same_view`)."""
     F = len(tracks)
     good = np.flatnonzero((w > 0).sum(1) >= 3)
     if len(good) < 2:
         return None
     frames = good[np.unique(np.linspace(0, len(good) - 1, SEARCH_FRAMES).round().astype(int))]
     found = search_camera(robot, tracks, w, free, K, frames)
-    if found is None or skip is not None and skip(found[1]):
+    if found is None or skip is not None and skip(found[1], found[2], frames):
         return None
     view = _PinholeView(found[1].R, found[1].t, found[1].f, found[1].c, np.zeros(F, int))
     uz = np.nan_to_num(tracks)
