@@ -137,3 +137,29 @@ def test_the_perspective_fit_refines_the_weak_starts_that_fit_best_under_its_cam
     assert 0 in refined and 3 in refined and len(refined) <= perspective.MAX_STARTS + 1  # + the best turned start
     d = np.abs((robot.angles(best["q"]) - robot.angles(trial.q) + np.pi) % (2 * np.pi) - np.pi)
     assert np.degrees(d[:, 1:]).max() < 0.1
+
+
+@pytest.mark.parametrize("seed", [27, 39])
+def test_the_pendulum_through_a_pinhole_camera_ends_on_the_truth_or_says_it_does_not_know(seed):
+    # the double pendulum (one moving tracked point, on joint1's circle; its base point 35 mm off that
+    # axis) filmed by synthesize's pinhole camera, the fit given the intrinsics, as bench_uncertainty does.
+    # Before issue 21's fix joint1 ended 62 (seed 27: held in frame 0 by the weak fit's gauge, reported
+    # relative to it) and 60 degrees RMS off (seed 39: every weak start in another basin), nothing flagged
+    import warnings
+
+    from chainspace.bench.robots import robot_chain
+    from chainspace.reconstruction.pipeline import reconstruct
+    from chainspace.robot.fit import fit_joint_angles
+
+    chain = robot_chain("double_pendulum")
+    trial = synthesize(chain, n_frames=30, noise_px=1.0, seed=seed)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_joint_angles(reconstruct(trial.tracks, chain, seed=seed), fps=trial.fps, tracks=trial.tracks,
+                               intrinsics=trial.intrinsics)
+    robot = fit.kinematics()
+    d = robot.wrap_angles(fit.angles - robot.angles(trial.q))
+    if fit.relative[0]:  # seen only relative to frame 0: compared as its change since frame 0
+        d = robot.wrap_angles(d - d[0])
+    rms = float(np.degrees(np.sqrt((d[:, 0] ** 2).mean())))
+    assert rms < 3.0 or fit.ambiguous[0], f"joint1 {rms:.1f} degrees RMS off, not flagged: {fit.message}"

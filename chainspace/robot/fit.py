@@ -108,14 +108,19 @@ the perspective fit starts from the weak fit's winner *and* its distinct alterna
 the reflection about the symmetry plane): each through the camera stage, the winner and the two
 others that fit best there refined in full (``perspective.MAX_STARTS``), and the lowest perspective
 objective wins. Where the best of them leaves squared residuals above twice what the tracks' own
-jitter allows (a robot close to a wide lens, whose weak starts are tens of degrees off), one more start
-competes: the camera searched in full perspective on a few frames and every frame's joints by IK under
-it (:mod:`chainspace.robot.pinhole_start`).
+jitter allows (a robot close to a wide lens, whose weak starts are tens of degrees off), or beats weak
+perspective's by more than 25 jitter variances (perspective measurable: the weak starts may all lie in
+another motion's basin), one more start competes: the camera searched in full perspective on a few
+frames and every frame's joints by IK under it (:mod:`chainspace.robot.pinhole_start`; not where the
+camera it finds is the winner's own).
 The camera-side rule (``view_from``) and the rest-pose rule then decide nothing; ``message`` says
 whether the choice was clear (the objectives more than 25 noise variances apart) or a guess. The
 joints seen only relative to frame 0, and the face-on planes of a wrist, are as above (a turn about
 the base axis is still a turn of the camera; a plane seen face-on is still tilted only to second
-order).
+order), except that a joint is held in frame 0 only where a change of view imitates it at every
+configuration (every tracked base point on its axis): one the weak fit held because of its
+configuration alone (the double pendulum's first joint, its base point off the axis) is fitted in
+every frame and reported observable.
 
 With ``image_size`` and no intrinsics the focal length is fitted too (``log f`` a seventh camera
 parameter; principal point at the image centre; starts at 0.5, 1, 2 and 4 image widths, the camera
@@ -720,6 +725,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     # the weak fit's ambiguities are perspective's to settle: its own (trust) notes replace them
     msg = "; ".join(m for m in weak_msg.split("; ") if not m.startswith(
         ("ambiguous: ", "poor fit: ", "uncertain: ")))
+    observable, relative, msg = _pinhole_observability(robot, weak, best, msg)
     tie_note = "; the motion and its mirror image fit the data equally well (weak perspective)"
     if tie_note in msg:
         cut = msg.index(tie_note)
@@ -739,12 +745,31 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         warnings.warn(f"fit_joint_angles: {msg}", ConvergenceWarning, stacklevel=2)
     timings["total"] = time.perf_counter() - t0
     return JointFit(
-        q=q, joint_names=weak.joint_names, observable=weak.observable, positions=positions,
+        q=q, joint_names=weak.joint_names, observable=observable, positions=positions,
         residual_3d=residual_3d, residual_px=residual_px, converged=converged, scale=float(s), rotation=R,
         translation=t, cameras=cams, translations_2d=ts2, chain=chain, urdf_path=urdf, message=msg,
-        n_iter=int(weak.n_iter + best["n_iter"]), relative=weak.relative, tracks=tracks, confidence=confidence,
+        n_iter=int(weak.n_iter + best["n_iter"]), relative=relative, tracks=tracks, confidence=confidence,
         positions_base=pos_base, input_poses=poses, timings=timings, intrinsics=cam,
         camera_pose=(view.R[0].copy(), view.t[0].copy()), focal_px=focal, focal_std_px=focal_std,
         q_std=trust["q_std"], noise_px=trust["noise_px"], alternatives=trust["alternatives"],
         ambiguous=trust["ambiguous"], joint_reasons=trust["reasons"],
     )
+
+
+def _pinhole_observability(robot: RobotKinematics, weak: JointFit, best: dict,
+                           msg: str) -> tuple[np.ndarray, np.ndarray, str]:
+    """``observable``, ``relative`` (nv,) and the message of a perspective fit, from the joints its
+    start held (:func:`chainspace.robot.perspective._pinhole_gauge`: blind ones at rest, structural
+    gauges at rest in frame 0) rather than the weak fit's; ``msg`` (the weak fit's notes) with the weak
+    fit's observability notes replaced by the perspective fit's own.
+
+    Why: the weak fit also holds a joint that its configuration makes a gauge, which a static pinhole
+    camera sees; the perspective fit then fits it in every frame, and reporting it as seen only
+    relative to frame 0 would compare and judge it as what it is not."""
+    st = best["start"]
+    blind = np.asarray(st["blind"], bool)
+    gauge = np.asarray(st["gauge"], bool) & ~blind
+    weak_notes = _notes(robot, ~weak.observable & ~weak.relative, weak.relative & ~weak.observable, False)
+    notes = _notes(robot, blind, gauge, False)
+    kept = [m for m in msg.split("; ") if m and m not in weak_notes and m != "all joints observable"]
+    return ~(blind | gauge), gauge.copy(), "; ".join(notes + kept) or "all joints observable"

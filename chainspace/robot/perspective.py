@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from .kinematics import RobotKinematics, _rest_distance, _wrapped
+from .observability import _hold, _structural
 from .solver import _huber, _motion_prior, _noise_sigma, _normal_equations, _sequence_lm, _smooth_lm, \
     _smoothed_objective
 from .views import _PinholeView, _camera_view, _pinhole_from_weak
@@ -44,8 +45,16 @@ MAX_STARTS = 3
 # the camera is also searched without weak perspective (:func:`_searched_start`) when the best fit from
 # the weak starts leaves squared residuals above this many times what the tracks' jitter allows: the
 # milling arm at close range (nearest point 0.3 m from a 90-degree lens, 300 frames) ended at 8 times,
-# with its wrist on a wrong path; a fit at the noise is near 1 (chi-square over thousands of residuals)
+# with its wrist on a wrong path; a fit at the noise is near 1 (chi-square over thousands of residuals).
+# It is also searched when the best fit beats weak perspective's by more than LR_MARGIN noise variances:
+# perspective is then measurable, and the weak starts may all lie in another motion's basin
 SEARCH_ABOVE_NOISE = 2.0
+# a searched camera this close to the winner's (rotation, and depth of the robot's root as a fraction)
+# is the winner's own view: refining it would only find the winner again (:func:`_same_view`). Seen (K
+# known): the searches that found the winner's camera again were 0.2-1.1 degrees from it (the milling
+# arm, 100 frames; the double pendulum, 30 frames, seeds 7 and 10), the others 13 degrees or more
+SAME_VIEW_DEG = 10.0
+SAME_VIEW_DEPTH = 0.05
 
 
 def _robust(rn: np.ndarray, w: np.ndarray, delta: float | None) -> float:
@@ -92,31 +101,111 @@ def _pnp_camera(x: np.ndarray, tracks: np.ndarray, w: np.ndarray, f: float, c: n
 
 
 def _searched_start(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: np.ndarray, st: dict,
-                    K: np.ndarray | None, n_obs: int) -> tuple[np.ndarray, _PinholeView] | None:
+                    K: np.ndarray | None, n_obs: int, weak_sse: float) -> tuple[np.ndarray, _PinholeView] | None:
     """A start owing nothing to weak perspective (:func:`chainspace.robot.pinhole_start.pinhole_start`:
     the camera searched on a few frames, every frame's joints by IK under it), when the best fit from
     the weak starts leaves squared residuals above :data:`SEARCH_ABOVE_NOISE` times what the tracks' own
     jitter (:func:`chainspace.robot.uncertainty.track_jitter`; on exact tracks, a twentieth of the weak
-    fit's image-size tolerance ``px_floor``) allows; else None. With the focal unknown the search uses
-    the best fit's. Returns (q (F, nq), camera) for the refinement.
+    fit's image-size tolerance ``px_floor``) allows, or beats weak perspective's squared residuals
+    ``weak_sse`` by more than :data:`LR_MARGIN` jitter variances; else None, and None where the searched
+    camera is the best fit's own (:func:`_same_view`). With the focal unknown the search uses the best
+    fit's. Returns (q (F, nq), camera) for the refinement.
 
-    Why only then: where the weak starts serve (far views) the fit is at the noise already, and the
-    search costs seconds (the milling arm at close range, 300 frames: 9-12 s of CPU against 211 s for the
-    perspective refinement of the weak starts)."""
+    Why only then: where the weak starts serve (far views) the fit is at the noise already and no
+    better than weak perspective's, and the search costs seconds (the milling arm at close range, 300
+    frames: 9-12 s of CPU against 211 s for the perspective refinement of the weak starts).
+    Why also where perspective is measurable: the weak fit's motion is then no longer the pinhole's, and
+    every weak start can lie in another motion's basin. The double pendulum (one moving point, on
+    joint1's circle; synthesize's pinhole camera, K known, 30 frames, seed 39): joint1 60 degrees RMS
+    off from the weak starts, unflagged (:func:`_pinhole_gauge` applied); 0.2 degrees from this start."""
     from .pinhole_start import pinhole_start
     from .uncertainty import track_jitter
 
     jitter = track_jitter(tracks, w)
     # exact tracks: a twentieth of the weak fit's image-size tolerance, as its ties have it
     noise = max(jitter, 0.05 * st["px_floor"])
-    if not np.isfinite(jitter) or best["sse"] <= SEARCH_ABOVE_NOISE * n_obs * noise ** 2:
+    if not np.isfinite(jitter):
+        return None
+    poor = best["sse"] > SEARCH_ABOVE_NOISE * n_obs * noise ** 2
+    measurable = weak_sse - best["sse"] > LR_MARGIN * noise ** 2
+    if not (poor or measurable):
         return None
     view = best["view"]
-    found = pinhole_start(robot, tracks, w, st["free"], st["gauge"], view.K if K is None else K)
+    # the winner's own camera found again: refining its start would only find the winner again
+    found = pinhole_start(robot, tracks, w, st["free"], st["gauge"], view.K if K is None else K,
+                          lambda pv, q, frames: _same_view(robot, pv, view) or _same_view(
+                              robot, pv, _gauge_turned(robot, best["q"][frames], view, st["gauge"], q)))
     if found is None:
         return None
     q, pv = found
     return q, _PinholeView(pv.R, pv.t, pv.f, pv.c, pv.cam_of, view.fit_focal)
+
+
+def _same_view(robot: RobotKinematics, a: _PinholeView, b: _PinholeView) -> bool:
+    """Whether two static pinhole cameras see the robot alike: rotations within :data:`SAME_VIEW_DEG`
+    of each other and the robot's root at depths within :data:`SAME_VIEW_DEPTH` of each other.
+
+    Why: the searched start (:func:`_searched_start`) costs IK in every frame and a full refinement;
+    where its camera is the winner's own, they only find the winner again (the milling arm, K known,
+    100 frames, seed 0: the search's camera 0.2 degrees from the winner's, at the same depth)."""
+    cos = (np.trace(a.R[0].T @ b.R[0]) - 1.0) / 2.0
+    if np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) > SAME_VIEW_DEG:
+        return False
+    root = robot.positions(robot.q_rest)[0, robot.chain.joint_index(robot.chain.root)]
+    za, zb = a.R[0, 2] @ root + a.t[0, 2], b.R[0, 2] @ root + b.t[0, 2]
+    return bool(abs(za - zb) <= SAME_VIEW_DEPTH * max(abs(zb), 1e-12))
+
+
+def _gauge_turned(robot: RobotKinematics, q: np.ndarray, view: _PinholeView, gauge: np.ndarray,
+                  q_other: np.ndarray) -> _PinholeView:
+    """The camera ``view`` of the motion q (n, nq) turned about the first joint's axis
+    (:func:`chainspace.robot.starts._base_turns`) as far as the gauge joint of q_other (n, nq) differs
+    from q's in the first frame, so that the turned motion projects as q did: the camera of q_other's
+    view of the same motion. ``view`` itself where the gauge (nv,) holds no such joint.
+
+    Why: a gauge joint (a change of view imitates it) is held in frame 0 at the value of its start, and
+    a start turned about the first joint's axis holds it turned, its camera turned to match: the same
+    view, a quarter turn apart. The UR10, K known, 100 frames, seed 0: the winner's joint1 held at -90
+    degrees in frame 0, the searched start's at 0, their cameras 89.7 degrees apart at the same depth;
+    the searched start refined to the winner's objective."""
+    from .views import similarity_align
+
+    if gauge.sum() != 1:
+        return view
+    turn = float(robot.wrap_angles(robot.angles(q_other[:1]) - robot.angles(q[:1]))[0, gauge][0])
+    turned = _base_turns(robot, q, (turn,))
+    if not turned:
+        return view
+    if np.abs(robot.wrap_angles(robot.angles(turned[0][:1]) - robot.angles(q_other[:1]))[0, gauge]).max() > 1e-6:
+        return view  # the joint turned is not the gauge joint
+    pos, pt = robot.positions(q), robot.positions(turned[0])
+    moved = np.linalg.norm(pt - pos, axis=-1) > 1e-9 * robot.reach()
+    if not moved.any():
+        return view
+    _, A, b = similarity_align(np.where(moved[..., None], pos, np.nan), np.where(moved[..., None], pt, np.nan),
+                               scale=False)  # the turn, x_t = A x + b (as candidates._turned_twins)
+    R = view.R[0] @ A.T
+    return _PinholeView(R[None], (view.t[0] - R @ b)[None], view.f, view.c, view.cam_of, view.fit_focal)
+
+
+def _pinhole_gauge(robot: RobotKinematics, st: dict, w: np.ndarray, unseen: np.ndarray) -> dict:
+    """The weak-perspective start ``st`` held as a static pinhole camera sees it: a joint held at rest
+    in frame 0 (seen only relative to it) only where it is a structural gauge
+    (:func:`chainspace.robot.observability._structural`: a change of view imitates it at every
+    configuration), with ``q``, ``free``, ``free_prior`` and ``gauge`` recomputed so.
+
+    Why: the weak fit also holds a joint that its configuration makes a gauge (the 3D fit's, and its
+    affine camera's), and a static pinhole camera sees it. The double pendulum (its base point 35 mm off
+    joint1's axis; synthesize's pinhole camera, K known, 30 frames): joint1 held in frame 0 could not
+    be corrected there, and seeds 10 and 27 ended 6.5 and 62 degrees RMS off (relative to frame 0),
+    unflagged; held only where structural, 0.7 (flagged: a tie) and 0.3 degrees."""
+    gauge = _structural(robot, w)[1] & ~st["blind"]
+    never = unseen & unseen.all(0)
+    q, free = _hold(robot, st["q"], st["blind"], gauge, False, unseen)
+    free_prior = _hold(robot, st["q"], st["blind"], gauge, False, never)[1]
+    if (gauge == st["gauge"]).all() and (free == st["free"]).all() and (free_prior == st["free_prior"]).all():
+        return st  # held as the pinhole holds it already (a base point on the first axis: the arms)
+    return dict(st, q=q, free=free, free_prior=free_prior, gauge=gauge)
 
 
 def _camera_covariance(robot: RobotKinematics, q: np.ndarray, view: _PinholeView, tracks: np.ndarray,
@@ -261,6 +350,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     # every start through the camera stage (the first over the focal guesses; the others reuse its focal),
     # then the weak fit's winner and the others of lowest cost there refined in full (MAX_STARTS in all)
     # each start also turned about the first joint's axis: the weak camera's guess of how far round it stands
+    starts = [_pinhole_gauge(robot, st, w, unseen) for st in starts]
     given = [st["q"] for st in starts]
     starts = list(starts) + [dict(st, q=q, view=_camera_view(robot.positions(q), tr, w, False), turn_of=st)
                              for st in starts for q in _base_turns(robot, st["q"])]
@@ -283,7 +373,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
                 n_iter += it
         fits += finish(q, pv, st, n_iter)
     contend([])
-    searched = _searched_start(robot, fits[0], tr, w, starts[0], K, n_obs)
+    searched = _searched_start(robot, fits[0], tr, w, starts[0], K, n_obs, weak_sse)
     if searched is not None:  # one more contender, on the objective like the others
         contend(finish(*searched, starts[0], 0))
     # (the given starts only: a turned start's tails beyond the first joint are its original's)

@@ -18,6 +18,7 @@ alternation, started from the true camera, stalled 1.4 degrees off at 300 times 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -165,9 +166,10 @@ def search_camera(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, fre
     robot's root on its track at :data:`DEPTH_FACTORS` times the depth its image size suggests, ranked
     by IK on the frames from one seed (all candidates in one batched solve); the :data:`N_REFINED`
     best then get IK from many seeds (:func:`_multi_seed_ik`) and the camera is fitted with the joints
-    (robust loss: a frame left on a wrong branch does not pull the camera off). The grid's spacing
-    (about 30 degrees) is within that fit's reach: the milling arm at close range, from the true
-    camera turned 30 degrees about random axes, returned to it in 6 of 6 trials."""
+    (robust loss: a frame left on a wrong branch does not pull the camera off); of those, the lowest
+    cost is kept. The grid's spacing (about 30 degrees) is within that fit's reach: the milling arm at
+    close range, from the true camera turned 30 degrees about random axes, returned to it in 6 of 6
+    trials."""
     f, c = float(K[0, 0]), K[:2, 2]
     x_rest = robot.positions(robot.q_rest)[0]
     seen = w > 0
@@ -191,9 +193,9 @@ def search_camera(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, fre
     rn = _sequence_lm(robot, q, uz[idx], w[idx], cams, free[idx], np.zeros(6, bool), 30, 1e-6, None)[2]
     cost = _cost(rn.reshape(n_c, n_f, -1), w[frames][None])
     extent = float(max(np.ptp(uz[..., 0][seen]), np.ptp(uz[..., 1][seen])))
-    # a candidate whose frames fit to within twice the tracks' jitter (per coordinate) ends the search
-    jitter = track_jitter(tracks, w)
-    enough = 2 * (2 * jitter) ** 2 if np.isfinite(jitter) else 0.0
+    # every one of them refined, the best kept: where few tracked points move (the double pendulum: one),
+    # a candidate can fit the search's few frames within the noise and still be another motion's camera,
+    # so the first one within the noise ends nothing
     best = None
     for j in np.argsort(cost)[:N_REFINED]:
         view = _PinholeView(Rs[j][None].copy(), ts[j][None].copy(), f, c, np.zeros(n_f, int))
@@ -203,13 +205,13 @@ def search_camera(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, fre
         cj = float(_cost(rnj[None], w[frames][None])[0])
         if view.apply(robot.positions(qj))[1][..., 2].min() > 0 and (best is None or cj < best[0]):
             best = (cj, view, qj)
-            if cj <= enough:
-                break
     return best
 
 
 def pinhole_start(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, free: np.ndarray,
-                  gauge: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, _PinholeView] | None:
+                  gauge: np.ndarray, K: np.ndarray,
+                  skip: Callable[[_PinholeView, np.ndarray, np.ndarray], bool] | None = None
+                  ) -> tuple[np.ndarray, _PinholeView] | None:
     """A perspective start from the tracks alone: the camera of :func:`search_camera` on
     :data:`SEARCH_FRAMES` frames spread over the sequence, then every frame's joints under it: IK from
     many seeds (:func:`_multi_seed_ik`) and along the sequence warm-started from the previous frames
@@ -218,14 +220,17 @@ def pinhole_start(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, fre
     front of it.
 
     tracks (F, J, 2) undistorted, in square pixels (K's fx for both axes); free (F, nv) the directions
-    each frame may move; gauge (nv,) the joints a static camera sees only relative to frame 0."""
+    each frame may move; gauge (nv,) the joints a static camera sees only relative to frame 0; skip, if
+    given, a test of the searched camera, its search frames' joints q (n, nq) and those frames (n,):
+    True returns None before every frame's IK (a view the caller has already:
+    :func:`chainspace.robot.perspective._same_view`)."""
     F = len(tracks)
     good = np.flatnonzero((w > 0).sum(1) >= 3)
     if len(good) < 2:
         return None
     frames = good[np.unique(np.linspace(0, len(good) - 1, SEARCH_FRAMES).round().astype(int))]
     found = search_camera(robot, tracks, w, free, K, frames)
-    if found is None:
+    if found is None or skip is not None and skip(found[1], found[2], frames):
         return None
     view = _PinholeView(found[1].R, found[1].t, found[1].f, found[1].c, np.zeros(F, int))
     uz = np.nan_to_num(tracks)
