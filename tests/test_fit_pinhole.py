@@ -225,11 +225,17 @@ def test_exact_twins_are_chosen_by_the_tie_policy_not_by_rounding(arm, arm_trial
     w = np.ones_like(rn)
     start = dict(px_floor=0.5, gauge=np.eye(robot.nv, dtype=bool)[0])
 
-    def fit(q, objective):
-        return dict(q=q, objective=objective, rn=rn, start=start)
+    def fit(q, objective, residuals=rn):
+        return dict(q=q, objective=objective, rn=residuals, start=start)
 
-    # within one noise variance (0.25 px^2 here): the motion nearer rest, whatever the order
+    # every point in the same place, objectives within one noise variance (0.25 px^2 here): the motion
+    # nearer rest, whatever the order
     assert _nearest_rest_of_exact(robot, [fit(twin, 1e-14), fit(truth, 3e-14)], w)["q"] is truth
     assert _nearest_rest_of_exact(robot, [fit(twin, 0.0), fit(truth, 0.2)], w)["q"] is truth
     # beyond it the tracks decide
     assert _nearest_rest_of_exact(robot, [fit(twin, 0.0), fit(truth, 0.3)], w)["q"] is twin
+    # and where the points are not in the same place: two distinct minima, whose lower one is the rule
+    # (the Panda from below, full ranges: 0.29 variances apart, residuals up to 0.32 px apart)
+    moved = rn.copy()
+    moved[3, 2] = 0.16  # 0.32 noise deviations
+    assert _nearest_rest_of_exact(robot, [fit(twin, 0.0), fit(truth, 0.07, moved)], w)["q"] is twin

@@ -55,6 +55,10 @@ SEARCH_ABOVE_NOISE = 2.0
 # arm, 100 frames; the double pendulum, 30 frames, seeds 7 and 10), the others 13 degrees or more
 SAME_VIEW_DEG = 10.0
 SAME_VIEW_DEPTH = 0.05
+# two fits whose residuals agree this closely (in noise deviations) at every seen point put the tracked
+# points in the same place: exact twins (:func:`_nearest_rest_of_exact`). Seen: 1e-12 for the milling
+# arm's wrist twins (noise-free), 0.3 for two distinct minima of the Panda (1 px noise)
+EXACT_TWIN_SIGMA = 1e-3
 
 
 def _robust(rn: np.ndarray, w: np.ndarray, delta: float | None) -> float:
@@ -428,18 +432,30 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
 
 
 def _nearest_rest_of_exact(robot: RobotKinematics, fits: list[dict], w: np.ndarray) -> dict:
-    """Of the fits (ordered by objective) within one noise variance of the lowest, the nearest to rest
-    (the tie policy's distance, :func:`chainspace.robot.kinematics._rest_distance`).
+    """Of the fits (ordered by objective) that are the lowest's exact twins, the nearest to rest (the tie
+    policy's distance, :func:`chainspace.robot.kinematics._rest_distance`); the lowest where it has none.
+    An exact twin: objective within one noise variance of the lowest, and every seen point's residual
+    within :data:`EXACT_TWIN_SIGMA` noise deviations of the lowest's (the tracked points in the same
+    place).
 
     Why: exact twins (a wrist's mirror image where the tracked points beyond it lie in one plane seen
     face-on) differ in objective by rounding alone, and which one rounds lower changed with the OpenCV
     build (the milling arm, K known, noise-free: 180 degrees off on the wrist with opencv 5.1, right
-    with 5.0). Within a noise variance the tracks do not choose (the rounding guard of ``finish``), so
-    the policy does, the same way on every machine; the twin stays an alternative."""
+    with 5.0; their residuals agreed to 1e-12 of the noise), so the policy decides, the same way on
+    every machine; the twin stays an alternative. Why not every fit within a noise variance: two
+    distinct minima can be that close (the Panda from below, full ranges, 30 frames: 0.29 variances
+    apart, residuals up to 0.32 noise deviations apart), and there the lower one is the rule
+    (nearest rest chose the one 31.6 mm off, against 2.2; both report the other as a tie)."""
     lead = fits[0]
-    var = max(_noise_sigma(lead["rn"], w), lead["start"]["px_floor"]) ** 2
-    exact = [r for r in fits if r["objective"] - lead["objective"] <= var]
-    return min(exact, key=lambda r: _rest_distance(robot, r["q"], r["q"][:1], r["start"]["gauge"]).mean())
+    sigma = max(_noise_sigma(lead["rn"], w), lead["start"]["px_floor"])
+    seen = (w > 0) & np.isfinite(lead["rn"])
+
+    def exact(r: dict) -> bool:
+        return (r["objective"] - lead["objective"] <= sigma ** 2
+                and bool(np.all(np.abs(r["rn"] - lead["rn"])[seen] <= EXACT_TWIN_SIGMA * sigma)))
+
+    return min([r for r in fits if exact(r)],
+               key=lambda r: _rest_distance(robot, r["q"], r["q"][:1], r["start"]["gauge"]).mean())
 
 
 def _trust(robot: RobotKinematics, best: dict, fits: list[dict], tracks: np.ndarray, w: np.ndarray,
