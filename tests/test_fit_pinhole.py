@@ -239,3 +239,34 @@ def test_exact_twins_are_chosen_by_the_tie_policy_not_by_rounding(arm, arm_trial
     moved = rn.copy()
     moved[3, 2] = 0.16  # 0.32 noise deviations
     assert _nearest_rest_of_exact(robot, [fit(twin, 0.0), fit(truth, 0.07, moved)], w)["q"] is twin
+
+
+def test_the_wrist_twin_nearest_rest_wins_when_every_start_reaches_the_other(arm, arm_trial, monkeypatch):
+    # which exact twin the starts descend to is rounding (opencv 5.1 with pin 4.1 sent them all to the
+    # flipped wrist here, 180 degrees off); the perspective fit enters the winner's wrist twins itself, so
+    # the tie policy (nearest rest) decides. Forced: every start moved to its twin farthest from rest.
+    import chainspace.robot.perspective as perspective
+    from chainspace.robot.kinematics import _rest_distance
+    from chainspace.robot.uncertainty import _wrist_twins
+
+    robot = RobotKinematics(arm.metadata["urdf_path"], arm)
+    refine = perspective.refine_perspective
+    moved = []
+
+    def far_twin(st):
+        qs = [st["q"]] + _wrist_twins(robot, st["q"], st["free"])
+        q = max(qs, key=lambda q: _rest_distance(robot, q, q[:1], st["gauge"]).mean())
+        moved.append(q is not st["q"])
+        return dict(st, q=q)
+
+    def refine_from_far_twins(robot_, starts, *args, **kw):
+        return refine(robot_, [far_twin(st) for st in starts], *args, **kw)
+
+    monkeypatch.setattr(perspective, "refine_perspective", refine_from_far_twins)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_joint_angles(_rough_reconstruction(arm_trial), chain=arm, tracks=arm_trial.tracks,
+                               intrinsics=arm_trial.intrinsics)
+    assert any(moved)
+    assert _worst_deg(fit, arm_trial) < 0.05
+    assert len(fit.alternatives) >= 1  # the far twin stays reported

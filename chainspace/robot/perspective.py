@@ -388,13 +388,21 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     grafted = _grafted(robot, fits[0], given + [r["q"] for r in fits[1:]], tr, w)
     if grafted is not None:
         contend(finish(grafted, fits[0]["view"], fits[0]["start"], 0))
-    # the winner's mirror image, facing the camera as it does, and the winner turned about the first joint's
-    # axis with the camera turned to match: its twins, which no start need reach (each refitted in full only
-    # when a plain fit of it ties with the winner's: a big robot's mirror twin is far off)
+    # the winner's mirror image, facing the camera as it does, the winner turned about the first joint's
+    # axis with the camera turned to match, and its wrist's Euler twins (every tracked point in place under
+    # any camera): its twins, which no start need reach (each refitted in full only when a plain fit of it
+    # ties with the winner's: a big robot's mirror twin is far off). Of exact twins the tie policy then
+    # keeps the one nearest rest (_nearest_rest_of_exact), whichever the starts happened to reach: the
+    # milling arm, K known, noise-free (seed 5), came out 180 degrees off on the wrist when every start
+    # descended to the same twin (a fresh install of 2026-12-04: opencv 5.1.0, pin 4.1.0, numpy 2.4.6), the
+    # true wrist found only as an alternative
+    from .uncertainty import _wrist_twins
+
     lead = fits[0]
     mirror = _pinhole_twin(robot, lead["q"], lead["view"], lead["free"])
     var0 = max(_noise_sigma(lead["rn"], w), lead["start"]["px_floor"]) ** 2
-    for q_tw, v_tw in ([] if mirror is None else [mirror]) + _turned_twins(robot, lead["q"], lead["view"]):
+    wrist = [(q_tw, lead["view"]) for q_tw in _wrist_twins(robot, lead["q"], lead["free"])]
+    for q_tw, v_tw in ([] if mirror is None else [mirror]) + _turned_twins(robot, lead["q"], lead["view"]) + wrist:
         if any(_same_motion(robot, q_tw, r["q"]) for r in fits):
             continue
         plain = _sequence_lm(robot, q_tw, tr, w, v_tw, lead["free"], np.ones(v_tw.n_params, bool), max_iter, tol,
