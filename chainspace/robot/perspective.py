@@ -57,10 +57,8 @@ SAME_VIEW_DEG = 10.0
 SAME_VIEW_DEPTH = 0.05
 # two fits whose residuals agree this closely (in noise deviations) at every seen point put the tracked
 # points in the same place: exact twins (:func:`_nearest_rest_of_exact`). Seen: 1e-12 for the milling
-# arm's wrist twins (noise-free), 3.4e-3 for the same twins at close range (1 px noise, 300 frames: each
-# refitted on its own, converged alike to 0.3 noise variances of objective), 0.32 for two distinct
-# minima of the Panda (1 px noise, full ranges from below); about the geometric middle of the last two
-EXACT_TWIN_SIGMA = 0.03
+# arm's wrist twins (noise-free), 0.3 for two distinct minima of the Panda (1 px noise)
+EXACT_TWIN_SIGMA = 1e-3
 
 
 def _robust(rn: np.ndarray, w: np.ndarray, delta: float | None) -> float:
@@ -390,21 +388,13 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     grafted = _grafted(robot, fits[0], given + [r["q"] for r in fits[1:]], tr, w)
     if grafted is not None:
         contend(finish(grafted, fits[0]["view"], fits[0]["start"], 0))
-    # the winner's mirror image, facing the camera as it does, the winner turned about the first joint's
-    # axis with the camera turned to match, and its wrist's Euler twins (every tracked point in place under
-    # any camera): its twins, which no start need reach (each refitted in full only when a plain fit of it
-    # ties with the winner's: a big robot's mirror twin is far off). Of exact twins the tie policy then
-    # keeps the one nearest rest (_nearest_rest_of_exact), whichever the starts happened to reach: the
-    # milling arm, K known, noise-free (seed 5), came out 180 degrees off on the wrist when every start
-    # descended to the same twin (a fresh install of 2026-12-04: opencv 5.1.0, pin 4.1.0, numpy 2.4.6), the
-    # true wrist found only as an alternative
-    from .uncertainty import _wrist_twins
-
+    # the winner's mirror image, facing the camera as it does, and the winner turned about the first joint's
+    # axis with the camera turned to match: its twins, which no start need reach (each refitted in full only
+    # when a plain fit of it ties with the winner's: a big robot's mirror twin is far off)
     lead = fits[0]
     mirror = _pinhole_twin(robot, lead["q"], lead["view"], lead["free"])
     var0 = max(_noise_sigma(lead["rn"], w), lead["start"]["px_floor"]) ** 2
-    wrist = [(q_tw, lead["view"]) for q_tw in _wrist_twins(robot, lead["q"], lead["free"])]
-    for q_tw, v_tw in ([] if mirror is None else [mirror]) + _turned_twins(robot, lead["q"], lead["view"]) + wrist:
+    for q_tw, v_tw in ([] if mirror is None else [mirror]) + _turned_twins(robot, lead["q"], lead["view"]):
         if any(_same_motion(robot, q_tw, r["q"]) for r in fits):
             continue
         plain = _sequence_lm(robot, q_tw, tr, w, v_tw, lead["free"], np.ones(v_tw.n_params, bool), max_iter, tol,
@@ -416,11 +406,14 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     # window only, which no whole-sequence candidate is (a tie then reported, or a lower one the winner)
     lead = fits[0]
     contend([r for r in _weak_windows(robot, lead, tr, w, fps) if not _same_motion(robot, r["q"], lead["q"])])
+    contend([r for r in _wrist_twins_of(robot, fits[0], tr, w) if not any(_same_motion(robot, r["q"], o["q"])
+                                                                         for o in fits)])
     best = _nearest_rest_of_exact(robot, fits, w)
     fits[:] = [best] + [r for r in fits if r is not best]
     var = max(best["sse"] / max(n_obs - 7, 1), 1e-12)
-    # (the weak fit's mirror/flip alternatives that perspective settles or not: the windows' own ties are _trust's)
-    others = [r for r in fits if r is not best and not r.get("window") and
+    # (the weak fit's mirror/flip alternatives that perspective settles or not: the windows' and wrist twins'
+    # own ties are _trust's)
+    others = [r for r in fits if r is not best and not r.get("window") and not r.get("twin") and
               np.abs(_wrapped(robot, r["q"] - best["q"])).max() > 0.05]
     best["settled"] = all(r["objective"] - best["objective"] > LR_MARGIN * var for r in others)
     best["n_alternatives"] = len(others)
@@ -472,6 +465,30 @@ def _nearest_rest_of_exact(robot: RobotKinematics, fits: list[dict], w: np.ndarr
 
     return min([r for r in fits if exact(r)],
                key=lambda r: _rest_distance(robot, r["q"], r["q"][:1], r["start"]["gauge"]).mean())
+
+
+def _wrist_twins_of(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.ndarray) -> list[dict]:
+    """The fit ``lead``'s wrist Euler twins (:func:`chainspace.robot.uncertainty._wrist_twins`: every tracked
+    point in place under any camera) as fits, scored as they are under lead's camera and prior, not
+    refitted: an exact twin scores as lead does to rounding, and the tie policy chooses between them
+    (:func:`_nearest_rest_of_exact`).
+
+    Why: which twin the starts descend to is rounding. The milling arm, K known, noise-free (seed 5)
+    came out 180 degrees off on the wrist on a fresh install (2026-12-04: opencv 5.1.0, pin 4.1.0,
+    numpy 2.4.6), every start on the far twin and the true wrist reported only as an alternative. Why
+    not refitted: at close range a fit is poor (residuals 5 times the noise) and a refit converges on
+    its own, further than the winner did (the milling arm on its track: the far twin, refitted, 670
+    noise variances lower than the true side), and the lower one then won on convergence alone."""
+    from .uncertainty import _wrist_twins
+
+    out = []
+    for q in _wrist_twins(robot, lead["q"], lead["free"]):
+        pos = robot.positions(q)
+        rn = np.linalg.norm(lead["view"].apply(pos)[0] - np.nan_to_num(tracks), axis=-1)
+        objective = (_robust(rn, w, lead["delta"]) if lead["prior"] is None else
+                     _smoothed_objective(lead["prior"], robot.angles(q), rn, w, lead["delta"]))
+        out.append(dict(lead, q=q, pos=pos, rn=rn, objective=objective, sse=float((w * rn ** 2).sum()), twin=True))
+    return out
 
 
 def _trust(robot: RobotKinematics, best: dict, fits: list[dict], tracks: np.ndarray, w: np.ndarray,
