@@ -112,8 +112,8 @@ def _searched_start(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: n
     jitter (:func:`chainspace.robot.uncertainty.track_jitter`; on exact tracks, a twentieth of the weak
     fit's image-size tolerance ``px_floor``) allows, or beats weak perspective's squared residuals
     ``weak_sse`` by more than :data:`LR_MARGIN` jitter variances; else None, and None where the searched
-    camera is the best fit's own (:func:`_same_view`) and the best fit is not poor. With the focal unknown the search uses the best
-    fit's. Returns (q (F, nq), camera) for the refinement.
+    camera is the best fit's own (:func:`_same_view`) and the best fit is not poor. With the focal
+    unknown the search uses the best fit's. Returns (q (F, nq), camera) for the refinement.
 
     Why only then: where the weak starts serve (far views) the fit is at the noise already and no
     better than weak perspective's, and the search costs seconds (the milling arm at close range, 300
