@@ -14,8 +14,11 @@ match (:func:`chainspace.robot.candidates._turned_twins`: only the base's points
 them apart) are refitted too where a plain fit of them ties: ties perspective may not settle, which no
 start need reach.
 Perspective then decides the depth mirrors the weak fit left open: under the winner's camera the
-other starts' branches beyond each joint are tried on the winner's arm (:func:`_grafted`). The
-winner's standard deviations and alternatives: :func:`_trust`.
+other starts' branches beyond each joint are tried on the winner's arm (:func:`_grafted`). Last, the
+other minima near the winner along what the tracks fix least: its path moved on windows
+(:func:`_weak_windows`), its loosest joints turned whole (:func:`_loose_turns`), and its wrist's exact
+twins (:func:`_wrist_twins_of`), of which the tie policy keeps the nearest rest
+(:func:`_nearest_rest_of_exact`). The winner's standard deviations and alternatives: :func:`_trust`.
 """
 
 from __future__ import annotations
@@ -406,14 +409,17 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     # window only, which no whole-sequence candidate is (a tie then reported, or a lower one the winner)
     lead = fits[0]
     contend([r for r in _weak_windows(robot, lead, tr, w, fps) if not _same_motion(robot, r["q"], lead["q"])])
+    # and its loosest joints turned whole: minima tens of degrees away along them, beyond the windows' reach
+    contend([r for r in _loose_turns(robot, fits[0], tr, w) if not any(_same_motion(robot, r["q"], o["q"])
+                                                                      for o in fits)])
     contend([r for r in _wrist_twins_of(robot, fits[0], tr, w) if not any(_same_motion(robot, r["q"], o["q"])
                                                                          for o in fits)])
     best = _nearest_rest_of_exact(robot, fits, w)
     fits[:] = [best] + [r for r in fits if r is not best]
     var = max(best["sse"] / max(n_obs - 7, 1), 1e-12)
-    # (the weak fit's mirror/flip alternatives that perspective settles or not: the windows' and wrist twins'
-    # own ties are _trust's)
-    others = [r for r in fits if r is not best and not r.get("window") and not r.get("twin") and
+    # (the weak fit's mirror/flip alternatives that perspective settles or not: the windows', turns' and wrist
+    # twins' own ties are _trust's)
+    others = [r for r in fits if r is not best and not any(r.get(k) for k in ("window", "twin", "turn")) and
               np.abs(_wrapped(robot, r["q"] - best["q"])).max() > 0.05]
     best["settled"] = all(r["objective"] - best["objective"] > LR_MARGIN * var for r in others)
     best["n_alternatives"] = len(others)
@@ -551,6 +557,24 @@ WEAK_WINDOW_S = 2.0
 WEAK_MAX_WINDOWS = 8
 
 
+def _frame_information(robot: RobotKinematics, lead: dict, tracks: np.ndarray,
+                       w: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """What each frame's tracks alone say about the joint angles of the fit ``lead`` (q, view, delta, rn,
+    start) under its camera: the Gauss-Newton matrix of the frame's robust reprojection errors (F, nv, nv;
+    px^2 / rad^2), with the directions that are held or slide (a slide's metres are not on the degrees'
+    scale) pinned by a large diagonal; those movable directions (F, nv); and the noise variance (px^2).
+    Its inverse times the variance is the frame's covariance without the motion prior."""
+    q, view, st = lead["q"], lead["view"], lead["start"]
+    var = max(_noise_sigma(lead["rn"], w), st["px_floor"]) ** 2
+    pos, jac = robot.jacobians(q)
+    pred, y = view.apply(pos)
+    res = pred - np.nan_to_num(tracks)
+    ww = w * _huber(np.linalg.norm(res, axis=-1), lead["delta"])[1]
+    movable = st["free_prior"] & ~robot.prismatic_v
+    H = _normal_equations(view, jac, y, res, ww, movable, np.zeros(view.n_params, bool))[0]
+    return H + (~movable)[:, :, None] * np.eye(robot.nv) * 1e12 * (1.0 + np.abs(H).max()), movable, var
+
+
 def _weak_windows(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.ndarray, fps: float) -> list[dict]:
     """Other minima of the smoothed objective near the winner ``lead`` (a smoothed perspective fit: q,
     view, delta, prior, start), on windows: per frame the direction of the joint angles that the
@@ -578,14 +602,8 @@ def _weak_windows(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.
         return []
     F, nv = len(q), robot.nv
     free = st["free_prior"]
-    var = max(_noise_sigma(lead["rn"], w), st["px_floor"]) ** 2
-    pos, jac = robot.jacobians(q)
-    pred, y = view.apply(pos)
-    res = pred - np.nan_to_num(tracks)
-    ww = w * _huber(np.linalg.norm(res, axis=-1), delta)[1]
-    movable = free & ~robot.prismatic_v  # angles only: a slide's metres are not on the degrees' scale
-    H = _normal_equations(view, jac, y, res, ww, movable, np.zeros(view.n_params, bool))[0]
-    lam, vec = np.linalg.eigh(H + (~movable)[:, :, None] * np.eye(nv) * 1e12 * (1.0 + np.abs(H).max()))
+    H, movable, var = _frame_information(robot, lead, tracks, w)
+    lam, vec = np.linalg.eigh(H)
     sd = np.sqrt(var / np.maximum(lam[:, 0], 1e-300))  # rad, along the unit direction vec[:, :, 0]
     d = vec[:, :, 0] * movable
     for f in range(1, F):  # one orientation along the sequence
@@ -610,4 +628,70 @@ def _weak_windows(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.
                             objective=_smoothed_objective(prior, robot.angles(o[0]), o[2], w, delta),
                             sse=float((w * o[2] ** 2).sum()), free=lead["free"], delta=delta, prior=prior, start=st,
                             window=(a, b)))
+    return out
+
+
+# the loosest joints' paths turned whole by multiples of this (:func:`_loose_turns`), and how many are turned
+TURN_STEP_DEG = 45.0
+TURN_MAX_JOINTS = 2
+TURN_REFITS = 4  # the distinct turned fits of lowest objective refitted in full
+
+
+def _loose_turns(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.ndarray) -> list[dict]:
+    """Other minima of the smoothed objective along the joints the tracks fix least: the
+    :data:`TURN_MAX_JOINTS` revolute joints whose standard deviation from each frame's tracks alone
+    (:func:`_frame_information`) is above the tie policy's AMBIGUOUS_DEG in most frames, the loosest
+    first; the winner ``lead``'s whole path turned on those joints by every combination of multiples of
+    :data:`TURN_STEP_DEG` (all but none), each refitted smoothed with the camera under the winner's
+    prior, briefly (20 iterations); the :data:`TURN_REFITS` distinct ones of lowest objective then
+    refitted in full. Returns fit dicts as ``refine_perspective``'s ``finish`` makes them, each with
+    ``turn`` (the joints' names and the turns in degrees).
+
+    Why: where the tracks fix a wrist's joints to a few degrees per frame, the smoothed objective can have
+    minima tens of degrees apart along them, and which one the starts reach is chance: the milling arm on its
+    track (lens distortion, intrinsics known, 300 frames, seed 0) ended 85-101 degrees off on joints a4 and a6
+    (3D error 2.2 % of reach) in a minimum 44 noise variances above the true motion's, which no start reached
+    (the same row without distortion did: other noise). There its two loosest joints are a6 and a5 (3-8 degrees
+    per frame); turned by multiples of 45 degrees, four of the 63 starts reach the true minimum's wrist twin,
+    and the tie policy then keeps the true one. The windows (:func:`_weak_windows`) move the path by SHAKE_DEG,
+    within the same basin, and the twins are discrete symmetries. Cost: about 15 s on that row (300 frames),
+    none where no joint is loose."""
+    from .uncertainty import AMBIGUOUS_DEG
+
+    q, view, delta, prior, st = lead["q"], lead["view"], lead["delta"], lead["prior"], lead["start"]
+    if prior is None:
+        return []
+    H, movable, var = _frame_information(robot, lead, tracks, w)
+    sd = np.degrees(np.sqrt(var * np.einsum("fvv->fv", np.linalg.inv(H))))  # (F, nv) per joint, other joints free
+    loose = np.flatnonzero(movable.all(0) & robot.turns_v & (np.median(sd, 0) > AMBIGUOUS_DEG))
+    loose = loose[np.argsort(-np.median(sd[:, loose], 0))][:TURN_MAX_JOINTS]
+    if not len(loose):
+        return []
+    steps = np.radians(TURN_STEP_DEG) * np.arange(1, int(round(360.0 / TURN_STEP_DEG)))
+    grids = np.stack(np.meshgrid(*[np.r_[0.0, steps]] * len(loose), indexing="ij"), -1).reshape(-1, len(loose))[1:]
+    free, ones = st["free_prior"], np.ones(view.n_params, bool)
+
+    def refit(q0, max_iter, tol):
+        o = _smooth_lm(robot, robot.continuous(q0), tracks, w, view, free, ones, max_iter, tol, delta, prior)
+        return o, _smoothed_objective(prior, robot.angles(o[0]), o[2], w, delta)
+
+    brief = []
+    for turn in grids:
+        dv = np.zeros((len(q), robot.nv))
+        dv[:, loose] = turn
+        o, objective = refit(robot.integrate(q, dv, clip=True), 20, 1e-6)
+        brief.append((objective, turn, o[0]))
+    kept: list[tuple] = []
+    for objective, turn, q1 in sorted(brief, key=lambda b: b[0]):
+        if len(kept) == TURN_REFITS:
+            break
+        if not any(_same_motion(robot, q1, k[2]) for k in kept) and not _same_motion(robot, q1, q):
+            kept.append((objective, turn, q1))
+    out = []
+    names = [robot.joint_names[v] for v in loose]
+    for _, turn, q1 in kept:
+        o, objective = refit(q1, 100, 1e-10)
+        out.append(dict(q=o[0], view=o[1], rn=o[2], pos=o[3], conv=o[4], n_iter=lead["n_iter"] + o[5],
+                        objective=objective, sse=float((w * o[2] ** 2).sum()), free=lead["free"], delta=delta,
+                        prior=prior, start=st, turn=dict(zip(names, np.degrees(turn).round(1).tolist()))))
     return out
