@@ -270,3 +270,32 @@ def test_the_wrist_twin_nearest_rest_wins_when_every_start_reaches_the_other(arm
     assert any(moved)
     assert _worst_deg(fit, arm_trial) < 0.05
     assert len(fit.alternatives) >= 1  # the far twin stays reported
+
+
+@pytest.mark.parametrize("below_by", [0.5, 30.0])
+def test_a_turned_fit_takes_over_only_beyond_the_tie_tolerance(arm, arm_trial, monkeypatch, below_by):
+    # the loosest joints' turns jump tens of degrees: a turned minimum lower by less than the tie tolerance
+    # (25 noise variances) is reported as a tie and the fit the starts reached stays; lower by more, it wins
+    import chainspace.robot.perspective as perspective
+
+    made = []
+
+    def turned_minimum(robot, lead, tracks, w):
+        var = max(perspective._noise_sigma(lead["rn"], w), lead["start"]["px_floor"]) ** 2
+        q = lead["q"].copy()
+        q[:, 3] += 0.5  # joint_a4 half a radian away, every point where the lead has it (a stand-in)
+        made.append(dict(lead, q=q, objective=lead["objective"] - below_by * var, turn={"joint_a4": 28.6}))
+        return made[-1:]
+
+    monkeypatch.setattr(perspective, "_loose_turns", turned_minimum)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_joint_angles(_rough_reconstruction(arm_trial), chain=arm, tracks=arm_trial.tracks,
+                               intrinsics=arm_trial.intrinsics)
+    assert made
+    a4 = float(np.degrees(np.abs(fit.q[:, 3] - made[0]["q"][:, 3])).max())
+    if below_by < 25:
+        assert _worst_deg(fit, arm_trial) < 0.05 and a4 > 20  # the reached fit stays,
+        assert fit.ambiguous[3] and len(fit.alternatives) >= 1  # the turned one reported as a tie
+    else:
+        assert a4 < 1e-6  # the turned fit is the answer

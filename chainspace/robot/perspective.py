@@ -409,13 +409,19 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     # window only, which no whole-sequence candidate is (a tie then reported, or a lower one the winner)
     lead = fits[0]
     contend([r for r in _weak_windows(robot, lead, tr, w, fps) if not _same_motion(robot, r["q"], lead["q"])])
-    # and its loosest joints turned whole: minima tens of degrees away along them, beyond the windows' reach
-    contend([r for r in _loose_turns(robot, fits[0], tr, w) if not any(_same_motion(robot, r["q"], o["q"])
-                                                                      for o in fits)])
+    # and its loosest joints turned whole: minima tens of degrees away along them, beyond the windows' reach.
+    # A turned fit takes over only where the tracks prefer it beyond the tie tolerance; within it, the one the
+    # starts reached stays and the turned one is reported as a tie (among minima within a noise variance of
+    # each other, the full ranges' Panda from below, which one is lowest is the noise's choice)
+    turned = [r for r in _loose_turns(robot, fits[0], tr, w) if not any(_same_motion(robot, r["q"], o["q"])
+                                                                       for o in fits)]
+    clear = fits[0]["objective"] - TIE_VARIANCES * max(_noise_sigma(fits[0]["rn"], w),
+                                                       fits[0]["start"]["px_floor"]) ** 2
+    contend([r for r in turned if r["objective"] < clear])
     contend([r for r in _wrist_twins_of(robot, fits[0], tr, w) if not any(_same_motion(robot, r["q"], o["q"])
                                                                          for o in fits)])
     best = _nearest_rest_of_exact(robot, fits, w)
-    fits[:] = [best] + [r for r in fits if r is not best]
+    fits[:] = [best] + [r for r in fits if r is not best] + [r for r in turned if r["objective"] >= clear]
     var = max(best["sse"] / max(n_obs - 7, 1), 1e-12)
     # (the weak fit's mirror/flip alternatives that perspective settles or not: the windows', turns' and wrist
     # twins' own ties are _trust's)
