@@ -660,8 +660,8 @@ def _loose_turns(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.n
     (the same row without distortion did: other noise). There its two loosest joints are a6 and a5 (3-8 degrees
     per frame); turned by multiples of 45 degrees, four of the 63 starts reach the true minimum's wrist twin,
     and the tie policy then keeps the true one. The windows (:func:`_weak_windows`) move the path by SHAKE_DEG,
-    within the same basin, and the twins are discrete symmetries. Cost: about 15 s on that row (300 frames),
-    none where no joint is loose."""
+    within the same basin, and the twins are discrete symmetries. Cost: 10-13 s on that row (300 frames, an
+    idle machine), none where no joint is loose."""
     from .uncertainty import AMBIGUOUS_DEG
 
     q, view, delta, prior, st = lead["q"], lead["view"], lead["delta"], lead["prior"], lead["start"]
