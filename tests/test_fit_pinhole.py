@@ -281,7 +281,7 @@ def test_a_turned_fit_takes_over_only_beyond_the_tie_tolerance(arm, arm_trial, m
     made = []
 
     def turned_minimum(robot, lead, tracks, w):
-        var = max(perspective._noise_sigma(lead["rn"], w), lead["start"]["px_floor"]) ** 2
+        var = perspective._noise_variance(lead, w)
         q = lead["q"].copy()
         q[:, 3] += 0.5  # joint_a4 half a radian away, every point where the lead has it (a stand-in)
         made.append(dict(lead, q=q, objective=lead["objective"] - below_by * var, turn={"joint_a4": 28.6}))

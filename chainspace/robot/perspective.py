@@ -68,6 +68,12 @@ def _robust(rn: np.ndarray, w: np.ndarray, delta: float | None) -> float:
     return float((w * _huber(rn, delta)[0]).sum())
 
 
+def _noise_variance(fit: dict, w: np.ndarray) -> float:
+    """The pixel noise variance (px^2) a fit's residuals measure, at least its start's image-size floor
+    squared: the unit of the tie tolerances."""
+    return max(_noise_sigma(fit["rn"], w), fit["start"]["px_floor"]) ** 2
+
+
 def _in_front(fit: dict) -> bool:
     """Whether every point of a perspective fit lies in front of its camera (positive depth)."""
     return bool((fit["view"].apply(fit["pos"])[1][..., 2] > 0).all())
@@ -396,7 +402,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     # when a plain fit of it ties with the winner's: a big robot's mirror twin is far off)
     lead = fits[0]
     mirror = _pinhole_twin(robot, lead["q"], lead["view"], lead["free"])
-    var0 = max(_noise_sigma(lead["rn"], w), lead["start"]["px_floor"]) ** 2
+    var0 = _noise_variance(lead, w)
     for q_tw, v_tw in ([] if mirror is None else [mirror]) + _turned_twins(robot, lead["q"], lead["view"]):
         if any(_same_motion(robot, q_tw, r["q"]) for r in fits):
             continue
@@ -415,8 +421,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     # each other, the full ranges' Panda from below, which one is lowest is the noise's choice)
     turned = [r for r in _loose_turns(robot, fits[0], tr, w) if not any(_same_motion(robot, r["q"], o["q"])
                                                                        for o in fits)]
-    clear = fits[0]["objective"] - TIE_VARIANCES * max(_noise_sigma(fits[0]["rn"], w),
-                                                       fits[0]["start"]["px_floor"]) ** 2
+    clear = fits[0]["objective"] - TIE_VARIANCES * _noise_variance(fits[0], w)
     contend([r for r in turned if r["objective"] < clear])
     contend([r for r in _wrist_twins_of(robot, fits[0], tr, w) if not any(_same_motion(robot, r["q"], o["q"])
                                                                          for o in fits)])
@@ -514,7 +519,7 @@ def _trust(robot: RobotKinematics, best: dict, fits: list[dict], tracks: np.ndar
     st = best["start"]
     best["out"] = (best["q"], best["view"], best["rn"], best["pos"], best["conv"], best["n_iter"])
     best["free_prior"] = st["free_prior"]
-    var = max(_noise_sigma(best["rn"], w), st["px_floor"]) ** 2
+    var = _noise_variance(best, w)
     return assess_fit(robot, best, [(r["objective"], r) for r in fits], var, tracks, w, best["prior"], st["blind"],
                       st["gauge"], lambda r: False, "", search=search_ties)
 
@@ -571,7 +576,7 @@ def _frame_information(robot: RobotKinematics, lead: dict, tracks: np.ndarray,
     scale) pinned by a large diagonal; those movable directions (F, nv); and the noise variance (px^2).
     Its inverse times the variance is the frame's covariance without the motion prior."""
     q, view, st = lead["q"], lead["view"], lead["start"]
-    var = max(_noise_sigma(lead["rn"], w), st["px_floor"]) ** 2
+    var = _noise_variance(lead, w)
     pos, jac = robot.jacobians(q)
     pred, y = view.apply(pos)
     res = pred - np.nan_to_num(tracks)
