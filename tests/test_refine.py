@@ -77,3 +77,29 @@ def test_viterbi_signs_are_the_exact_minimiser(F):
     for b in range(n):
         best = min(cost(sig, b) for sig in itertools.product((0, 1), repeat=F))
         assert cost(tuple(got[b]), b) == pytest.approx(best, rel=1e-12, abs=1e-12)
+
+
+def test_blocks_of_frames_give_the_whole_sequences_numbers(monkeypatch):
+    """The objective and the Gauss-Newton step are computed FRAME_BLOCK frames at a time (for the
+    cache): blocks of 7 frames, whose accelerations and parent bones reach across block boundaries,
+    give what one block of all frames gives."""
+    import chainspace.reconstruction.refine as R
+
+    from chainspace.reconstruction.pipeline import _prior_parents
+
+    chain, _, Wb, wb, s, prior, x0 = _setup(noise=2.0, F=40)
+    wb = wb.copy()
+    wb[5:9, 3] = 0.0  # a bone unseen across a block boundary
+    pb = R._Problem(Wb, wb, s, prior, float(np.median(s)) ** 2, 10.0, 0.5, 1e-3, 3.0, _prior_parents(chain))
+    l = R._best_lengths(x0)
+    x = x0 * 1.05
+    out = {}
+    for block in (7, 10_000):
+        monkeypatch.setattr(R, "FRAME_BLOCK", block)
+        out[block] = (R.objective_terms(pb, x, l), R.objective_terms(pb, x, l, [2, 5]), R._gauss_newton(pb, x, l),
+                      pb.prior(x))
+    for a, b in zip(out[7][:2], out[10_000][:2]):
+        for k in a:
+            assert np.allclose(a[k], b[k], rtol=1e-12, atol=0), k
+    assert np.array_equal(out[7][2], out[10_000][2])
+    assert np.array_equal(out[7][3], out[10_000][3])

@@ -63,6 +63,12 @@ from scipy.linalg import solveh_banded
 __all__ = ["refine_bones", "RefineResult", "objective_terms"]
 
 
+# Frames per block of the objective's per-frame arithmetic: a block's temporaries (a few dozen
+# (block, bones) arrays) stay in the processor's cache, where whole sequences of 100,000 frames did not
+# (the objective alone: 3.5-8 microseconds a frame on 100,000 frames, 3.9 on 10,000; 1.9 in blocks).
+FRAME_BLOCK = 2048
+
+
 @dataclass
 class RefineResult:
     """Refined bones in camera axes (F, n_bones, 3), lengths (n_bones,) and the objective history."""
@@ -115,13 +121,20 @@ class _Problem:
         direction relative to the thigh); the initial pose's own bone where there is no parent."""
         return np.moveaxis(self.prior_coords(x, bones), 0, -1)
 
-    def prior_coords(self, x: np.ndarray, bones: Any = None) -> np.ndarray:
-        """:meth:`prior` coordinates first, (3, F, n)."""
+    def prior_coords(self, x: np.ndarray, bones: Any = None, frames: slice | None = None) -> np.ndarray:
+        """:meth:`prior` coordinates first, (3, F, n); only the rows ``frames`` of x and of the result
+        (default: all, computed :data:`FRAME_BLOCK` frames at a time)."""
         idx = np.arange(self.Wb.shape[1]) if bones is None else np.asarray(bones)
-        has, q, u, y, yxu, uy = self._constants(idx)
+        if frames is None:
+            F = len(x)
+            out = np.empty((3, F, len(idx)))
+            for a in range(0, F, FRAME_BLOCK):
+                out[:, a:a + FRAME_BLOCK] = self.prior_coords(x, idx, slice(a, a + FRAME_BLOCK))
+            return out
+        has, q, u, y, yxu, uy = self._constants(idx, frames)
         if not len(has):
-            return self.glob_c[:, :, idx]
-        v = _coords(np.take(x, q, axis=1))
+            return self.glob_c[:, frames][:, :, idx]
+        v = _coords(np.take(x[frames], q, axis=1))
         v /= np.maximum(np.sqrt(_cdot(v, v)), 1e-300)
         c = _cdot(u, v)
         # Rodrigues for the rotation taking u to v, with w = u x v: y c + w x y + w (w.y) / (1 + c),
@@ -130,7 +143,7 @@ class _Problem:
         f = _cdot(v, yxu) / np.maximum(1.0 + c, 1e-9)
         w = (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
         whole = len(has) == len(idx)
-        out = np.empty(y.shape) if whole else self.glob_c[:, :, idx]
+        out = np.empty(y.shape) if whole else self.glob_c[:, frames][:, :, idx]
         for i in range(3):
             r = y[i] * c
             r += v[i] * uy
@@ -148,13 +161,13 @@ class _Problem:
                 out[:, :, has] = np.where(flip, y, out[:, :, has])
         return out
 
-    def _constants(self, idx: np.ndarray) -> tuple:
-        """The prior's constant arrays for the bones idx: which of them have a parent bone, those
-        parents, and the initial-pose arrays of those bones."""
+    def _constants(self, idx: np.ndarray, frames: slice) -> tuple:
+        """The prior's constant arrays for the bones idx (rows ``frames``): which of them have a parent
+        bone, those parents, and the initial-pose arrays of those bones."""
         has = np.flatnonzero(self.parent[idx] >= 0)
         k = self.slot[idx[has]]
-        return (has, self.parent[idx[has]], self.u_par[:, :, k], self.glob_c[:, :, idx[has]], self.yxu[:, :, k],
-                self.uy[:, k])
+        return (has, self.parent[idx[has]], self.u_par[:, frames][:, :, k], self.glob_c[:, frames][:, :, idx[has]],
+                self.yxu[:, frames][:, :, k], self.uy[frames][:, k])
 
 
 def _coords(a: np.ndarray) -> np.ndarray:
@@ -215,17 +228,24 @@ def _accel(x: np.ndarray) -> np.ndarray:
 def objective_terms(pb: _Problem, x: np.ndarray, l: np.ndarray, bones: Any = None) -> dict[str, np.ndarray]:
     """Each term of E per bone, (L,) arrays (image units squared); only ``bones`` if given."""
     idx = np.arange(x.shape[1]) if bones is None else np.asarray(bones)
-    xc = _coords(np.take(x, idx, axis=1))  # (3, F, n): sums over frames of contiguous rows
-    Wb, wb = pb.Wb_c[:, :, idx], pb.wb[:, idx]
-    s = pb.s[:, None]
-    r = np.sqrt((s * xc[0] - Wb[0]) ** 2 + (s * xc[1] - Wb[1]) ** 2)
-    data = (wb * _huber(r, pb.delta)).sum(0)
-    length = pb.lam_len * pb.s2 * ((np.sqrt(_cdot(xc, xc)) - l[idx]) ** 2).sum(0)
-    a = xc[:, 2:] - 2.0 * xc[:, 1:-1] + xc[:, :-2]
-    smooth = pb.lam_smooth * pb.s2 * _cdot(a, a).sum(0)
-    d = xc - pb.prior_coords(x, idx)
-    prior = pb.lam_prior * pb.s2 * _cdot(d, d).sum(0)
-    return {"data": data, "length": length, "smooth": smooth, "prior": prior}
+    F = x.shape[0]
+    data, length, smooth, prior = (np.zeros(len(idx)) for _ in range(4))
+    for a in range(0, F, FRAME_BLOCK):
+        b = min(a + FRAME_BLOCK, F)
+        # the block's frames and the two after them, which its accelerations reach
+        xe = _coords(np.take(x[a:min(b + 2, F)], idx, axis=1))  # (3, frames, n): sums over contiguous rows
+        xc = xe[:, :b - a]
+        Wb, wb = pb.Wb_c[:, a:b][:, :, idx], pb.wb[a:b][:, idx]
+        s = pb.s[a:b, None]
+        r = np.sqrt((s * xc[0] - Wb[0]) ** 2 + (s * xc[1] - Wb[1]) ** 2)
+        data += (wb * _huber(r, pb.delta)).sum(0)
+        length += ((np.sqrt(_cdot(xc, xc)) - l[idx]) ** 2).sum(0)
+        acc = xe[:, 2:] - 2.0 * xe[:, 1:-1] + xe[:, :-2]
+        smooth += _cdot(acc, acc).sum(0)
+        d = xc - pb.prior_coords(x, idx, slice(a, b))
+        prior += _cdot(d, d).sum(0)
+    return {"data": data, "length": pb.lam_len * pb.s2 * length, "smooth": pb.lam_smooth * pb.s2 * smooth,
+            "prior": pb.lam_prior * pb.s2 * prior}
 
 
 def _energy(pb: _Problem, x: np.ndarray, l: np.ndarray, bones: Any = None) -> np.ndarray:
@@ -392,16 +412,21 @@ def _gauss_newton(pb: _Problem, x: np.ndarray, l: np.ndarray) -> np.ndarray:
     bone are banded (3 coordinates x F frames, bandwidth 6); several bones share one banded solve
     (one after the other, so the matrix is block diagonal)."""
     F, L = x.shape[:2]
-    res = pb.s[:, None, None] * x[..., :2] - pb.Wb  # (F, L, 2)
-    r = np.sqrt((res * res).sum(-1))
-    h = pb.wb * np.where(r <= pb.delta, 1.0, pb.delta / np.maximum(r, 1e-300))  # IRLS weights
-    nx = np.sqrt((x * x).sum(-1))
-    u = x / np.maximum(nx, 1e-12)[..., None]
     kl, ks, kp = pb.lam_len * pb.s2, pb.lam_smooth * pb.s2, pb.lam_prior * pb.s2
     d0, d1, d2 = _smooth_bands(F)
-    # gradient (half of dE/dx), per frame and bone
-    g = kl * (nx - l)[..., None] * u + kp * (x - pb.prior(x))
-    g[..., :2] += (h * pb.s[:, None])[..., None] * res
+    # gradient (half of dE/dx) per frame and bone, IRLS weights h and unit bones u: the per-frame
+    # terms a block of frames at a time (the temporaries stay in cache), the smoothness after
+    g, u, h = np.empty(x.shape), np.empty(x.shape), np.empty((F, L))
+    for f in range(0, F, FRAME_BLOCK):
+        fr = slice(f, f + FRAME_BLOCK)
+        xb = x[fr]
+        res = pb.s[fr, None, None] * xb[..., :2] - pb.Wb[fr]  # (frames, L, 2)
+        r = np.sqrt((res * res).sum(-1))
+        h[fr] = pb.wb[fr] * np.where(r <= pb.delta, 1.0, pb.delta / np.maximum(r, 1e-300))
+        nx = np.sqrt((xb * xb).sum(-1))
+        u[fr] = xb / np.maximum(nx, 1e-12)[..., None]
+        g[fr] = kl * (nx - l)[..., None] * u[fr] + kp * (xb - np.moveaxis(pb.prior_coords(x, None, fr), 0, -1))
+        g[fr, :, :2] += (h[fr] * pb.s[fr, None])[..., None] * res
     a = _accel(x)
     if F > 2:
         g[:-2] += ks * a
