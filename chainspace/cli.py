@@ -462,7 +462,10 @@ def fit(
         W, conf, _ = load_tracks(source, chain=kc, format=format)
         with _status(f"reconstructing {W.shape[0]} frames of {kc.name}"):
             rec = run(W, kc, confidence=conf, **_intrinsics_kwargs(run, pinhole, "reconstruct"))
-    with _status(f"fitting joint angles to {rec.poses.shape[0]} frames"):
+    from .progress import print_stages
+
+    # the fit's stages as lines with the elapsed time: it runs for minutes on long clips (issue 21)
+    with _status(f"fitting joint angles to {rec.poses.shape[0]} frames"), print_stages():
         result = fit_joint_angles(rec, urdf_path, camera=camera.value, fps=fps, **fit_kw,
                                   **({} if fit_chain is None else {"chain": fit_chain}))
     for p in save_results(result, out, overwrite=overwrite):

@@ -178,6 +178,7 @@ import numpy as np
 
 from ..chain import KinematicChain
 from ..errors import ConvergenceWarning, DescriptionError, TrackError, is_real
+from ..progress import stage, stage_steps
 from .kinematics import RobotKinematics, _rest_distance, _roughness
 from .result import JointFit
 from .views import _affine_camera, _align, _camera_view, _looks_down, similarity_align
@@ -381,7 +382,9 @@ def fit_joint_angles(
                           unseen3)
     free_sim = np.array([transform != "none"] * 3 + [transform == "similarity"] + [transform != "none"] * 3)
     candidates, n_iter = [], 0
-    for sign in ((1.0, -1.0) if mirror and transform == "similarity" else (1.0,)):
+    signs = (1.0, -1.0) if mirror and transform == "similarity" else (1.0,)
+    stage("robot fit, %d frames: the 3D points (%d mirror image%s)", F, len(signs), "s" if len(signs) > 1 else "")
+    for sign in signs:
         X = sign * Xz
         q, view, n_iter_a = _fit_3d(robot, X, w3, free_blind, transform, max_iter, tol,
                                     gauge0 if transform != "none" else blind & False)
@@ -492,7 +495,11 @@ def fit_joint_angles(
                                                           r["down"] > 0.02)
 
         # both mirror images: a poor reconstruction may favour the wrong one in 3D
-        results = [refine_2d(c) for c in candidates]
+        step = stage_steps("robot fit: refining on the tracks, candidate", len(candidates))
+        results = []
+        for k, c in enumerate(candidates):
+            step(k)
+            results.append(refine_2d(c))
         if not per_frame and transform == "similarity" and min(r["cost"] for r in results) > 3 * px_floor:
             # the tracks are fitted poorly from the reconstruction's start: also a camera found from the
             # tracks alone (costly, so only then)
@@ -556,6 +563,8 @@ def fit_joint_angles(
             while len(reflected) < 2 and not any(results[0] is r for r in reflected):
                 r0 = results[0]
                 reflected.append(r0)
+                stage("robot fit: refining the best fit's two reflections on the tracks (round %d of at most 2)",
+                      len(reflected))
                 alts = [refine_2d(reflection(r0, M)) for M in (depth_mirror(r0), np.diag([1.0, -1.0, 1.0]))]
                 results, mirror_tied = order(results + alts)
         r = results[0]
@@ -568,6 +577,7 @@ def fit_joint_angles(
             smoothed = True
             decay_frames = np.inf if speed_decay_s is None else speed_decay_s * float(fps)
             prior = _motion_prior(unseen2, mu, decay_frames)
+            stage("robot fit: choosing among %d fits with the motion prior", len(results))
             r, mirror_tied, it = _most_probable(robot, results, tracks, w2, prior,
                                                 max(sigma, px_floor), max_iter, tol, seen_from_wrong_side,
                                                 reflected_start, rebranch, scored)
@@ -585,6 +595,8 @@ def fit_joint_angles(
             tie_var = max(r["sse"] / max(r["n_obs"], 1), (0.05 * px_floor) ** 2)
             scored = [(x["sse"], x) for x in results]
         t2 = time.perf_counter()
+        if _assess:
+            stage("robot fit: the joint angles' standard deviations and alternatives")
         # (not for the weak start of a pinhole fit with known intrinsics, which is assessed itself)
         trust = assess_fit(robot, r, scored, tie_var, tracks, w2, prior, blind, gauge, seen_from_wrong_side,
                            side_why if view_from is not None else "", search=search_ties) if _assess else {}
@@ -675,6 +687,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         raise DescriptionError("intrinsics / image_size need the 2D tracks (tracks=...)")
     tracks_u = cam.undistort(tracks) if cam is not None else tracks
     starts: list = []
+    stage("robot fit through a pinhole camera: first the weak-perspective fit, its start")
     with warnings.catch_warnings():  # the weak fit only starts this one: its convergence is not the result's
         warnings.simplefilter("ignore", ConvergenceWarning)
         weak = fit_joint_angles(poses, urdf, chain=chain, tracks=tracks_u, confidence=confidence,

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..progress import stage, stage_steps
 from .kinematics import RobotKinematics, _rest_distance, _wrapped
 from .observability import _hold, _structural
 from .solver import _huber, _motion_prior, _noise_sigma, _normal_equations, _sequence_lm, _smooth_lm, \
@@ -371,14 +372,19 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     given = [st["q"] for st in starts]
     starts = list(starts) + [dict(st, q=q, view=_camera_view(robot.positions(q), tr, w, False), turn_of=st)
                              for st in starts for q in _base_turns(robot, st["q"])]
-    screened = [camera_start(starts[0], f_inits)]
-    chosen_f = screened[0][3] if fit_focal else None
-    screened += [camera_start(st, [chosen_f or f_inits[0]]) for st in starts[1:]]
+    step = stage_steps("robot fit, perspective: the camera from start", len(starts))
+    screened, chosen_f = [], None
+    for k, st in enumerate(starts):  # the first over the focal guesses, the others at its focal
+        step(k)
+        screened.append(camera_start(st, f_inits if k == 0 else [chosen_f or f_inits[0]]))
+        chosen_f = screened[0][3] if fit_focal else None
     # the turned starts compete for a slot of their own: on the xArm7 from below (full ranges, seed 0) one of
     # lower camera-stage cost pushed the true basin's start out, and the fit ended 151 degrees off
     by_cost = sorted(range(1, len(starts)), key=lambda k: screened[k][0])
     keep = [0] + [k for k in by_cost if k < len(given)][:MAX_STARTS - 1] + [k for k in by_cost if k >= len(given)][:1]
-    for k in keep:
+    step = stage_steps("robot fit, perspective: refining in full, start", len(keep))
+    for i, k in enumerate(keep):
+        step(i)
         st, (_, pv, q, f0, n_iter) = starts[k], screened[k]
         none_free = np.zeros_like(st["free"])
         pv = _PinholeView(pv.R, pv.t, pv.f, pv.c, pv.cam_of, fit_focal)
@@ -390,6 +396,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
                 n_iter += it
         fits += finish(q, pv, st, n_iter)
     contend([])
+    stage("robot fit, perspective: other minima (a searched camera, grafts, twins, windows, turned joints)")
     searched = _searched_start(robot, fits[0], tr, w, starts[0], K, n_obs, weak_sse)
     if searched is not None:  # one more contender, on the objective like the others
         contend(finish(*searched, starts[0], 0))
@@ -453,6 +460,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
                               f"(squared residuals {best['sse']:.4g} against {weak_sse:.4g} px^2, noise "
                               f"variance {var:.3g} px^2: no measurable perspective)")
     if best["measured"]:  # else the weak fit is reported, with its own
+        stage("robot fit, perspective: the joint angles' standard deviations and alternatives")
         best["trust"] = _trust(robot, best, fits, tr, w, search_ties)
     return best
 
