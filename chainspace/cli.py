@@ -91,6 +91,8 @@ _SHELL_ADVICE = (
     ("pass urdf=PATH", "give --urdf"),
     ("pass format= one of", "give --format, one of"),
     ("pass init_pose (J, 3)", "give --init-pose (J, 3)"),
+    ("pass intrinsics= (a calibration) or image_size=(width, height)",
+     "give --intrinsics FILE (a calibration) or --image-size W H"),
 )
 
 
@@ -474,9 +476,10 @@ def fit(
         from .view.viewer import write_html
 
         _say(f"wrote {write_html(html, rec, fit=result, fps=fps, overwrite=overwrite, **_frustum(pinhole))}")
-    typer.echo(repr(result))
+    typer.echo(_for_the_shell(repr(result)))
     if not np.all(result.converged):
-        raise _fail(f"{int(np.sum(~np.asarray(result.converged)))} frames did not converge: {result.message}",
+        raise _fail(f"{int(np.sum(~np.asarray(result.converged)))} frames did not converge: "
+                    f"{_for_the_shell(result.message)}",
                     EXIT_NOT_GOOD)
 
 

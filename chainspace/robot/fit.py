@@ -192,6 +192,11 @@ from .uncertainty import assess_fit
 __all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"]
 
 
+PERSPECTIVE_HINT = ("a camera within a few robot reaches sees the robot in perspective, which this fit (given no "
+                    "intrinsics or image size) does not model: pass intrinsics= (a calibration) or "
+                    "image_size=(width, height) to fit under perspective")
+
+
 def _positive(x: Any) -> bool:
     return is_real(x) and x > 0
 
@@ -634,6 +639,10 @@ def fit_joint_angles(
                          f"to its mirror image in depth ({', '.join(turned)} differ), so the branch after those "
                          "frames is a guess; track a point off that plane (extra_frames) to settle it")
     notes += trust.get("notes", [])
+    if _starts is None and any(n.startswith("poor fit: ") for n in notes):
+        # a user's own weak-perspective fit: close-range footage is the common cause (issue 17's pinhole
+        # rows fitted this way were 10-160 degrees off), and the remedy is an option away
+        notes.append(PERSPECTIVE_HINT)
     msg = "; ".join(notes) if notes else "all joints observable"
     if mirror_tied:
         msg += ("; the motion and its mirror image fit the data equally well (weak perspective): "
