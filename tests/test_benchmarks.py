@@ -36,6 +36,8 @@ SMALLEST = {
     "bench_speed.py": (["--sizes", "500"], "| 500 |"),
     "bench_uncertainty.py": (["--robot", "double_pendulum", "--trials", "1", "--frames", "6"],
                              "a static pinhole camera"),
+    "bench_no_camera.py": (["--robots", "double_pendulum", "--seeds", "1", "--frames", "8"],
+                           "| double_pendulum | 0 |"),
 }
 # bench_batch.py starts two Dask clusters and a fresh process (tens of seconds even --quick): its pieces
 # are run here instead (test_batch_benchmark_recordings)

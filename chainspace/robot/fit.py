@@ -604,7 +604,8 @@ def fit_joint_angles(
             stage("robot fit: the joint angles' standard deviations and alternatives")
         # (not for the weak start of a pinhole fit with known intrinsics, which is assessed itself)
         trust = assess_fit(robot, r, scored, tie_var, tracks, w2, prior, blind, gauge, seen_from_wrong_side,
-                           side_why if view_from is not None else "", search=search_ties) if _assess else {}
+                           side_why if view_from is not None else "", search=search_ties,
+                           camera_assumed=_starts is None) if _assess else {}
         timings["uncertainty"] = time.perf_counter() - t2
         converged = conv2  # the 3D stage only started this one
         residual_px = _rms_per_frame(rn, w2)

@@ -274,6 +274,32 @@ def track_jitter(tracks: np.ndarray, w: np.ndarray) -> float:
     return 1.4826 * float(np.median(d2)) / np.sqrt(6.0) if d2.size else float("nan")
 
 
+# a weak-perspective fit that the user asked for by giving no camera (assess_fit's ``camera_assumed``) is
+# poor as a whole where its typical tracked point lies this many times further off (median) than the
+# tracks' own jitter allows a right model (see camera_misfit)
+CAMERA_MISFIT_RATIO = 1.25
+
+
+def camera_misfit(rn: np.ndarray, w: np.ndarray, jitter: float) -> tuple[float, float]:
+    """(ratio, typical): the typical tracked point's median residual length ``typical`` (px; the median
+    over the points seen in :data:`POOR_FIT_MIN_FRAMES` frames or more of each one's median), and its
+    ratio to ``jitter sqrt(2 ln 2)``, the median residual length a right model leaves on tracks of that
+    jitter (:func:`track_jitter`). About 0.9 where the model matches the footage (the fit's own degrees
+    of freedom take a little of the noise); NaN without a jitter or a judged point.
+
+    Why: a weak-perspective fit of footage from a camera within a few robot reaches misses every point
+    alike, so no point stands out from the typical one (:func:`poor_fit_joints` sees nothing), while its
+    joints are 5-140 degrees off (the UR10, Panda and milling arm filmed by ``synthesize``'s phone-like
+    camera, 60 frames: typical point 1.4-6 times the jitter's, against 0.9 through a weak camera)."""
+    seen = (w > 0) & np.isfinite(rn)
+    n = seen.sum(0)
+    judged = np.flatnonzero(n >= POOR_FIT_MIN_FRAMES)
+    if not judged.size or not np.isfinite(jitter) or jitter <= 0:
+        return float("nan"), float("nan")
+    typical = float(np.median([np.median(rn[seen[:, j], j]) for j in judged]))
+    return typical / (jitter * np.sqrt(2 * np.log(2))), typical
+
+
 def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np.ndarray,
                     sigma: float, extent: float = 0.0, jitter: float = np.nan) -> tuple[np.ndarray, list[str], np.ndarray]:
     """Joints (nv,) that move a tracked point the fit does not explain, the names of those points, and
@@ -318,7 +344,7 @@ def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np
 
 def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict]], var: float,
                tracks: np.ndarray, w: np.ndarray, prior, blind: np.ndarray, gauge: np.ndarray, wrong_side,
-               side_why: str, search: bool = False) -> dict:
+               side_why: str, search: bool = False, camera_assumed: bool = False) -> dict:
     """What the fit knows and does not: ``q_std`` (F, nv) (NaN where a joint is held: not observable,
     or unseen without the motion prior; 0 for a joint seen relative to frame 0, in frame 0),
     ``noise_px`` (the measured pixel noise), ``alternatives`` (:func:`alternatives_of`; ``scored``
@@ -331,7 +357,9 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     it validly sets a fit aside; ``side_why``: why that rule does not apply here ("" when it does).
     ``search``: also look beyond the fit's candidates (:func:`_exact_flips` refitted and
     :func:`_other_branch`, :func:`_shaken`): the ``search_ties`` of ``fit_joint_angles``, off by default
-    because it costs several fits."""
+    because it costs several fits. ``camera_assumed``: the camera model was not given but assumed (weak
+    perspective, no intrinsics or image size): a fit that misses its points as a whole
+    (:func:`camera_misfit` above :data:`CAMERA_MISFIT_RATIO`) then has every joint poorly fitted."""
     q, view = winner["out"][0], winner["out"][1]
     rel = gauge & ~blind
     free = (winner["free_prior"] if prior is not None else winner["free"]).copy()
@@ -355,10 +383,19 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     poor, points, ratio = poor_fit_joints(robot, q, winner["out"][2], w, noise, extent, jitter) \
         if np.isfinite(noise) else (np.zeros(robot.nv, bool), [], None)
     poor &= ~blind
+    misfit, typical = camera_misfit(winner["out"][2], w, jitter) if camera_assumed else (float("nan"), 0.0)
+    whole = bool(misfit > CAMERA_MISFIT_RATIO and typical > POOR_FIT_FLOOR * extent)  # (noise-free: rounding)
+    if whole:
+        poor = ~blind
     uncertain, spread = uncertain_joints(robot, std, ~blind)
     unit = np.where(robot.prismatic_v, "mm", "deg")
     # (no note holds "; ": the fit's message joins its notes with it, and the perspective fit splits them again)
-    if poor.any():
+    if whole:
+        notes.append(f"poor fit: {', '.join(robot.joint_names[k] for k in np.flatnonzero(poor))}: the tracked "
+                     f"points are fitted {typical:.2g} px off (median), {misfit:.1f} times what the tracks' own "
+                     f"jitter ({jitter:.2g} px from frame to frame) leaves a right model: the weak-perspective "
+                     "camera this fit assumes (or the robot model) does not explain the tracks")
+    elif poor.any():
         notes.append(f"poor fit: {', '.join(robot.joint_names[k] for k in np.flatnonzero(poor))}: the tracks of "
                      f"{', '.join(points)} are fitted {ratio.max():.1f} times further off (median) than the noise "
                      f"({noise:.2g} px, the tracks' own jitter {jitter:.2g} px) or the typical tracked point allow, "
@@ -377,7 +414,9 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
                      "tracks pin these joints down no better: reported, not trusted")
     # one reason per joint ("" where none), each naming only what concerns that joint
     reasons = ["; ".join(why for flag, why in (
-        (poor[k], f"poor fit: the tracks of {', '.join(points)} are fitted {ratio.max() if poor.any() else 0:.1f} "
+        (poor[k], f"poor fit: the tracked points are fitted {misfit:.1f} times further off (median) than the "
+                  "tracks' jitter allows (the assumed weak-perspective camera)" if whole else
+                  f"poor fit: the tracks of {', '.join(points)} are fitted {ratio.max() if poor.any() else 0:.1f} "
                   "times further off (median) than the noise or the typical tracked point allow"),
         (ambiguous[k], f"tie: {len(alts)} other motion(s) fit the tracks as well and differ here by up to "
                        f"{worst[k]:.0f} {unit[k]} RMS (fit.alternatives)"),
