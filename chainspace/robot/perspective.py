@@ -377,7 +377,8 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     for k, st in enumerate(starts):  # the first over the focal guesses, the others at its focal
         step(k)
         screened.append(camera_start(st, f_inits if k == 0 else [chosen_f or f_inits[0]]))
-        chosen_f = screened[0][3] if fit_focal else None
+        if k == 0 and fit_focal:
+            chosen_f = screened[0][3]
     # the turned starts compete for a slot of their own: on the xArm7 from below (full ranges, seed 0) one of
     # lower camera-stage cost pushed the true basin's start out, and the fit ended 151 degrees off
     by_cost = sorted(range(1, len(starts)), key=lambda k: screened[k][0])
