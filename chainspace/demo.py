@@ -230,7 +230,11 @@ def run_demo(out_dir: str | Path, *, overwrite: bool = False, progress: bool | C
     _say(progress, f"[4/6] fitting the URDF's joint angles to {F} frames with the camera's intrinsics "
                    f"(f = {camera.fx:.0f} px; the longest stage)")
     t = time.perf_counter()
-    with _Ticker(progress, f"fitting {F} frames", every=15.0):
+    from .progress import print_stages
+
+    # the fit's own stages between the ticker's lines (a silent demo stays silent)
+    with _Ticker(progress, f"fitting {F} frames", every=15.0), \
+            print_stages("      ", say=lambda line: _say(progress, line)):
         fit = fit_joint_angles(rec, urdf, chain=chain, tracks=tracks, confidence=confidence, fps=trial.fps,
                                intrinsics=camera)
     timings["fit"] = time.perf_counter() - t

@@ -47,14 +47,18 @@ def stage_steps(label: str, total: int, every_s: float = 2.0) -> Callable[[int],
 
 
 @contextmanager
-def print_stages(prefix: str = "") -> Iterator[None]:
+def print_stages(prefix: str = "", say: Callable[[str], None] | None = None) -> Iterator[None]:
     """Print the stages logged inside the block to stderr as plain lines, each with the seconds since the
-    block began (readable on a terminal and in a log alike)."""
+    block began (readable on a terminal and in a log alike); ``say(line)`` instead of printing, if given."""
     t0 = time.perf_counter()
 
     class _Lines(logging.Handler):
         def emit(self, record: logging.LogRecord) -> None:
-            print(f"[{time.perf_counter() - t0:6.1f} s] {prefix}{record.getMessage()}", file=sys.stderr, flush=True)
+            line = f"{prefix}[{time.perf_counter() - t0:6.1f} s] {record.getMessage()}"
+            if say is None:
+                print(line, file=sys.stderr, flush=True)
+            else:
+                say(line)
 
     handler = _Lines(logging.INFO)
     level, propagate = STAGES.level, STAGES.propagate
