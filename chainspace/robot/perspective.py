@@ -617,11 +617,10 @@ def _weak_windows(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.
     a minimum 0.01 noise variances from it, joint6 1.14 degrees RMS off: a tie that nothing reported."""
     from .uncertainty import AMBIGUOUS_DEG, SHAKE_DEG
 
-    q, view, delta, prior, st = lead["q"], lead["view"], lead["delta"], lead["prior"], lead["start"]
-    if prior is None:
+    q = lead["q"]
+    if lead["prior"] is None:
         return []
-    F, nv = len(q), robot.nv
-    free = st["free_prior"]
+    F = len(q)
     H, movable, var = _frame_information(robot, lead, tracks, w)
     lam, vec = np.linalg.eigh(H)
     sd = np.sqrt(var / np.maximum(lam[:, 0], 1e-300))  # rad, along the unit direction vec[:, :, 0]
@@ -636,19 +635,27 @@ def _weak_windows(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.
     windows = [(a, min(a + size, F)) for a in range(0, max(F - size // 2, 1), size // 2)]
     windows = [(a, b) for a, b in windows if loose[a:b].mean() > 0.5]
     windows = sorted(windows, key=lambda ab: -np.median(sd[ab[0]:ab[1]]))  # the loosest first
-    ones = np.ones(view.n_params, bool)
     out = []
     for a, b in windows[:WEAK_MAX_WINDOWS]:
         taper = np.zeros(F)
         taper[a:b] = np.sin(np.pi * (np.arange(a, b) - a + 0.5) / (b - a)) ** 2
         for sign in (1.0, -1.0):
             q0 = robot.integrate(q, sign * np.radians(SHAKE_DEG) * taper[:, None] * d, clip=True)
-            o = _smooth_lm(robot, robot.continuous(q0), tracks, w, view, free, ones, 100, 1e-10, delta, prior)
-            out.append(dict(q=o[0], view=o[1], rn=o[2], pos=o[3], conv=o[4], n_iter=lead["n_iter"] + o[5],
-                            objective=_smoothed_objective(prior, robot.angles(o[0]), o[2], w, delta),
-                            sse=float((w * o[2] ** 2).sum()), free=lead["free"], delta=delta, prior=prior, start=st,
-                            window=(a, b)))
+            out.append(_smoothed_refit(robot, lead, q0, tracks, w, 100, 1e-10, window=(a, b)))
     return out
+
+
+def _smoothed_refit(robot: RobotKinematics, lead: dict, q0: np.ndarray, tracks: np.ndarray, w: np.ndarray,
+                    max_iter: int, tol: float, **tag) -> dict:
+    """q0 (F, nq) refitted smoothed, camera too, under the winner ``lead``'s camera, motion prior, Huber
+    threshold and free directions: a fit dict as ``refine_perspective``'s ``finish`` makes them, with
+    ``tag`` (``window=``, ``turn=``: what the other-minima searches mark their fits with)."""
+    view, delta, prior, st = lead["view"], lead["delta"], lead["prior"], lead["start"]
+    o = _smooth_lm(robot, robot.continuous(q0), tracks, w, view, st["free_prior"], np.ones(view.n_params, bool),
+                   max_iter, tol, delta, prior)
+    return dict(q=o[0], view=o[1], rn=o[2], pos=o[3], conv=o[4], n_iter=lead["n_iter"] + o[5],
+                objective=_smoothed_objective(prior, robot.angles(o[0]), o[2], w, delta),
+                sse=float((w * o[2] ** 2).sum()), free=lead["free"], delta=delta, prior=prior, start=st, **tag)
 
 
 # the loosest joints' paths turned whole by multiples of this (:func:`_loose_turns`), and how many are turned
@@ -678,8 +685,8 @@ def _loose_turns(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.n
     idle machine), none where no joint is loose."""
     from .uncertainty import AMBIGUOUS_DEG
 
-    q, view, delta, prior, st = lead["q"], lead["view"], lead["delta"], lead["prior"], lead["start"]
-    if prior is None:
+    q = lead["q"]
+    if lead["prior"] is None:
         return []
     H, movable, var = _frame_information(robot, lead, tracks, w)
     sd = np.degrees(np.sqrt(var * np.einsum("fvv->fv", np.linalg.inv(H))))  # (F, nv) per joint, other joints free
@@ -689,29 +696,17 @@ def _loose_turns(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.n
         return []
     steps = np.radians(TURN_STEP_DEG) * np.arange(1, int(round(360.0 / TURN_STEP_DEG)))
     grids = np.stack(np.meshgrid(*[np.r_[0.0, steps]] * len(loose), indexing="ij"), -1).reshape(-1, len(loose))[1:]
-    free, ones = st["free_prior"], np.ones(view.n_params, bool)
-
-    def refit(q0, max_iter, tol):
-        o = _smooth_lm(robot, robot.continuous(q0), tracks, w, view, free, ones, max_iter, tol, delta, prior)
-        return o, _smoothed_objective(prior, robot.angles(o[0]), o[2], w, delta)
-
     brief = []
     for turn in grids:
         dv = np.zeros((len(q), robot.nv))
         dv[:, loose] = turn
-        o, objective = refit(robot.integrate(q, dv, clip=True), 20, 1e-6)
-        brief.append((objective, turn, o[0]))
+        brief.append((_smoothed_refit(robot, lead, robot.integrate(q, dv, clip=True), tracks, w, 20, 1e-6), turn))
     kept: list[tuple] = []
-    for objective, turn, q1 in sorted(brief, key=lambda b: b[0]):
+    for r, turn in sorted(brief, key=lambda b: b[0]["objective"]):
         if len(kept) == TURN_REFITS:
             break
-        if not any(_same_motion(robot, q1, k[2]) for k in kept) and not _same_motion(robot, q1, q):
-            kept.append((objective, turn, q1))
-    out = []
+        if not any(_same_motion(robot, r["q"], k[0]["q"]) for k in kept) and not _same_motion(robot, r["q"], q):
+            kept.append((r, turn))
     names = [robot.joint_names[v] for v in loose]
-    for _, turn, q1 in kept:
-        o, objective = refit(q1, 100, 1e-10)
-        out.append(dict(q=o[0], view=o[1], rn=o[2], pos=o[3], conv=o[4], n_iter=lead["n_iter"] + o[5],
-                        objective=objective, sse=float((w * o[2] ** 2).sum()), free=lead["free"], delta=delta,
-                        prior=prior, start=st, turn=dict(zip(names, np.degrees(turn).round(1).tolist()))))
-    return out
+    return [_smoothed_refit(robot, lead, r["q"], tracks, w, 100, 1e-10,
+                            turn=dict(zip(names, np.degrees(turn).round(1).tolist()))) for r, turn in kept]

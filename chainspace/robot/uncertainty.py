@@ -291,13 +291,21 @@ def camera_misfit(rn: np.ndarray, w: np.ndarray, jitter: float) -> tuple[float, 
     alike, so no point stands out from the typical one (:func:`poor_fit_joints` sees nothing), while its
     joints are 5-140 degrees off (the UR10, Panda and milling arm filmed by ``synthesize``'s phone-like
     camera, 60 frames: typical point 1.4-6 times the jitter's, against 0.9 through a weak camera)."""
+    typical = _point_medians(rn, w)[2]
+    if not np.isfinite(typical) or not np.isfinite(jitter) or jitter <= 0:
+        return float("nan"), float("nan")
+    return typical / (jitter * np.sqrt(2 * np.log(2))), typical
+
+
+def _point_medians(rn: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Each tracked point's median residual length (J,; 0 where never seen), whether it is judged (seen
+    in :data:`POOR_FIT_MIN_FRAMES` frames or more), and the typical point's: the median of the judged
+    points' medians (NaN when none is judged)."""
     seen = (w > 0) & np.isfinite(rn)
     n = seen.sum(0)
-    judged = np.flatnonzero(n >= POOR_FIT_MIN_FRAMES)
-    if not judged.size or not np.isfinite(jitter) or jitter <= 0:
-        return float("nan"), float("nan")
-    typical = float(np.median([np.median(rn[seen[:, j], j]) for j in judged]))
-    return typical / (jitter * np.sqrt(2 * np.log(2))), typical
+    med = np.array([np.median(rn[seen[:, j], j]) if n[j] else 0.0 for j in range(rn.shape[1])])
+    judged = n >= POOR_FIT_MIN_FRAMES
+    return med, judged, float(np.median(med[judged])) if judged.any() else float("nan")
 
 
 def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np.ndarray,
@@ -322,15 +330,13 @@ def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np
     off, squared residuals 640 px^2 where the true motion's basin has 148), nothing ties with the
     winner, but the fit still does not explain the tracks, and its joints are not known. The Solo12
     (full ranges, seed 0): measured noise 3.6-3.9 px on 1 px tracks, joints up to 120 degrees off."""
-    seen = (w > 0) & np.isfinite(rn)
-    n = seen.sum(0)
-    med = np.array([np.median(rn[seen[:, j], j]) if n[j] else 0.0 for j in range(rn.shape[1])])
+    med, judged, typical = _point_medians(rn, w)
     # against the noise, or the typical point's median where that is lower (the measured noise is a
     # median over every residual, which a badly fitted point pulls up)
-    typical = np.median(med[n >= POOR_FIT_MIN_FRAMES]) if (n >= POOR_FIT_MIN_FRAMES).any() else np.inf
+    typical = typical if judged.any() else np.inf
     noise = min(sigma, JITTER_SLACK * jitter) if np.isfinite(jitter) else sigma
     ratio = med / max(min(noise * np.sqrt(2 * np.log(2)), typical), 1e-12)
-    bad = (n >= POOR_FIT_MIN_FRAMES) & (ratio > POOR_FIT_RATIO) & (med > POOR_FIT_FLOOR * extent)
+    bad = judged & (ratio > POOR_FIT_RATIO) & (med > POOR_FIT_FLOOR * extent)
     if not bad.any():
         return np.zeros(robot.nv, bool), [], ratio
     frames = np.unique(np.linspace(0, len(q) - 1, min(len(q), 5)).round().astype(int))
