@@ -54,6 +54,30 @@ def test_frames_without_data_take_the_nearest_camera():
     np.testing.assert_allclose(Pf[2], Pf[1])
 
 
+def test_cameras_from_frames_last_moments_equal_fit_cameras():
+    """The KCS stage's route (bone_moments of frames-last arrays, then fit_to_moments, warm-started)
+    gives fit_cameras' cameras, on noisy data with weights, an unusable frame filled from its
+    neighbour."""
+    from chainspace.cameras.weak import bone_moments, fit_to_moments
+
+    B, P, W = _case(noise=5.0, seed=4)
+    w = np.random.default_rng(4).uniform(0.2, 1.0, W.shape[:2])
+    w[7, 1:] = 0.0  # one bone left: frame 7 is filled
+    W = np.where(w[..., None] > 0, W, 0.0)
+    R0 = Rotation.random(len(W), random_state=5).as_matrix()
+    for kw in ({}, {"R0": R0, "n_iter": 1}):
+        Pf, s, R = fit_cameras(W, B, w, return_rotation=True, **kw)
+        last = lambda a: np.ascontiguousarray(np.moveaxis(a, 0, -1))  # noqa: E731
+        G, H = bone_moments(last(np.swapaxes(W, 1, 2)), last(np.swapaxes(B, 1, 2)), last(w))
+        c0 = (w * (W**2).sum(-1)).sum(-1)
+        R0e = last(kw["R0"]) if kw else None
+        s2, R2 = fit_to_moments(G, H, c0, (w > 0).sum(-1) >= 2, R0=R0e, n_iter=kw.get("n_iter", 5))
+        # the same arithmetic in another order: rounding, which the damped steps' cost tests amplify
+        np.testing.assert_allclose(s2, s, rtol=1e-7)
+        np.testing.assert_allclose(np.moveaxis(R2, -1, 0), R, atol=1e-7)
+        np.testing.assert_allclose(R[7], R[6])
+
+
 def test_project_and_shape_errors():
     rng = np.random.default_rng(0)
     X = rng.normal(size=(3, 4, 3))
@@ -94,5 +118,5 @@ def test_written_out_cholesky_solves_the_gauss_newton_systems():
     b = rng.normal(size=(F, 4))
     N = [[A[:, i, j] if j <= i else None for j in range(4)] for i in range(4)]
     N[3][0], N[2][1] = 0.0, 0.0
-    x = _solve_spd4(N, [b[:, i] for i in range(4)])
+    x = _solve_spd4(N, [b[:, i] for i in range(4)]).T  # (4, F): one row per unknown
     np.testing.assert_allclose(x, np.linalg.solve(A, b[..., None])[..., 0], rtol=1e-10, atol=1e-12)

@@ -66,18 +66,19 @@ def test_svt_matches_a_full_svd():
     A = np.random.default_rng(5).normal(size=(50, 3, 15)) * np.logspace(0, -3, 15)
     U, sig, Vt = np.linalg.svd(A.reshape(-1, 15), full_matrices=False)
     for tau in (0.0, 0.5 * sig[3], 0.5 * sig[12], 2.0 * sig[0]):  # all kept, a few (two thin products), most, none
-        out, nuc = _svt(A, tau)
+        out, nuc = _svt(np.ascontiguousarray(A.transpose(1, 2, 0)), tau)  # frames last
         shrunk = np.maximum(sig - tau, 0.0)
-        np.testing.assert_allclose(out.reshape(-1, 15), (U * shrunk) @ Vt, atol=1e-10 * sig[0])
+        np.testing.assert_allclose(out.transpose(2, 0, 1).reshape(-1, 15), (U * shrunk) @ Vt, atol=1e-10 * sig[0])
         assert nuc == pytest.approx(shrunk.sum())
 
 
 @pytest.mark.parametrize("uniform", [True, False])
 def test_steps_in_camera_axes_equal_the_paper_step(uniform):
-    """One FISTA step of _solve_A (run in camera axes, rotated per frame) is the textbook proximal
-    gradient step in world axes: SVT(A - step * P^T ((P A S - R) w) S^T)."""
+    """One FISTA step of _solve_A (run in camera axes, rotated per frame, frames last) is the textbook
+    proximal gradient step in world axes: SVT(A - step * P^T ((P A S - R) w) S^T), the SVT by a full
+    SVD."""
     from chainspace.cameras.weak import fit_cameras
-    from chainspace.reconstruction.kcs import _solve_A, _svt, bone_observations
+    from chainspace.reconstruction.kcs import _solve_A, bone_observations
 
     chain, X, W = _case(noise=1.0, F=40)
     c = np.ones(W.shape[:2]) if uniform else np.random.default_rng(1).uniform(0.2, 1.0, W.shape[:2])
@@ -91,6 +92,27 @@ def test_steps_in_camera_axes_equal_the_paper_step(uniform):
     step = 1.0 / float((s**2 * wb.max(-1)).max() * np.linalg.norm(S, 2) ** 2)
     grad = np.swapaxes(P, 1, 2) @ (((P @ A @ S) - R) * wb[:, None, :]) @ S.T
     tau = 0.3 / step
-    want, _ = _svt(A - step * grad, step * tau)
-    got = _solve_A(A, Rot, s, S, R, wb, [tau])
-    np.testing.assert_allclose(got, want, atol=1e-10 * np.abs(want).max())
+    U, sig, Vt = np.linalg.svd((A - step * grad).reshape(-1, 15), full_matrices=False)
+    want = ((U * np.maximum(sig - step * tau, 0.0)) @ Vt).reshape(A.shape)
+    last = lambda a: np.ascontiguousarray(np.moveaxis(a, 0, -1))  # noqa: E731 - frames last
+    got = _solve_A(last(A), last(Rot), s, S, last(R), wb.T, [tau])
+    np.testing.assert_allclose(np.moveaxis(got, -1, 0), want, atol=1e-10 * np.abs(want).max())
+
+
+def test_point_masks_equal_numpys_per_coordinate_forms():
+    """where_seen and seen_points (each point's two coordinates handled as one complex number) equal
+    np.where(seen[..., None], points, fill) and np.isfinite(points).all(-1), on contiguous and
+    strided arrays, with one coordinate missing, inf, and a NaN fill."""
+    from chainspace.reconstruction.kcs import seen_points, where_seen
+
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(6, 5, 2)) * 1e3
+    pts[0, 1, 0] = np.nan
+    pts[2, 3, 1] = np.inf
+    pts[4, 0] = np.nan
+    for p in (pts, pts[:, ::2], np.asfortranarray(pts)):
+        seen = np.isfinite(p).all(-1)
+        assert np.array_equal(seen_points(p), seen)
+        assert not seen.all() and seen.any()
+        for fill in (0.0, np.nan):
+            np.testing.assert_array_equal(where_seen(p, seen, fill), np.where(seen[..., None], p, fill))

@@ -103,3 +103,23 @@ def test_blocks_of_frames_give_the_whole_sequences_numbers(monkeypatch):
             assert np.allclose(a[k], b[k], rtol=1e-12, atol=0), k
     assert np.array_equal(out[7][2], out[10_000][2])
     assert np.array_equal(out[7][3], out[10_000][3])
+
+
+def test_gauss_newton_step_in_groups_of_bones_equals_one_solve(monkeypatch):
+    """The Gauss-Newton step's banded solves take the bones in groups (SOLVE_GROUP unknowns): one bone
+    a group gives the step of one solve for all bones (the groups' ridges, 1e-12 of their largest
+    diagonal, differ in the last digits only)."""
+    import chainspace.reconstruction.refine as R
+
+    from chainspace.reconstruction.pipeline import _prior_parents
+
+    chain, _, Wb, wb, s, prior, x0 = _setup(noise=2.0, F=40)
+    pb = R._Problem(Wb, wb, s, prior, float(np.median(s)) ** 2, 10.0, 0.5, 1e-3, 3.0, _prior_parents(chain))
+    l = R._best_lengths(x0)
+    x = x0 * 1.05
+    steps = {}
+    for group in (1, 10**9):
+        monkeypatch.setattr(R, "SOLVE_GROUP", group)
+        steps[group] = R._gauss_newton(pb, x, l) - x
+    assert np.abs(steps[1]).max() > 1e-3 * np.abs(x).max()  # a real step
+    np.testing.assert_allclose(steps[1], steps[10**9], rtol=1e-9, atol=1e-9 * np.abs(steps[1]).max())

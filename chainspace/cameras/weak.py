@@ -23,7 +23,8 @@ import numpy as np
 
 from ..errors import TrackError
 
-__all__ = ["fit_cameras", "project", "camera_scale", "complete_rotation", "rodrigues", "smooth_scales"]
+__all__ = ["fit_cameras", "fit_to_moments", "bone_moments", "project", "camera_scale", "complete_rotation", "rodrigues",
+           "smooth_scales"]
 
 
 def _rows(a: np.ndarray, dim: int, other: int | None, name: str) -> np.ndarray:
@@ -37,17 +38,31 @@ def _rows(a: np.ndarray, dim: int, other: int | None, name: str) -> np.ndarray:
 
 def rodrigues(omega: np.ndarray) -> np.ndarray:
     """(..., 3, 3) rotation matrices exp([omega]x) for rotation vectors (..., 3)."""
-    th2 = np.einsum("...i,...i->...", omega, omega)[..., None, None]
+    omega = np.asarray(omega, dtype=float)
+    return np.moveaxis(_rodrigues_entries(np.moveaxis(omega, -1, 0)), (0, 1), (-2, -1))
+
+
+def _rodrigues_entries(omega: np.ndarray) -> np.ndarray:
+    """Rotations exp([omega]x) entries first, (3, 3, ...), for rotation vectors (3, ...)."""
+    th2 = (omega * omega).sum(0)
     th = np.sqrt(th2)
-    K = np.zeros(omega.shape[:-1] + (3, 3))
-    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -omega[..., 2], omega[..., 1], -omega[..., 0]
-    K = K - np.swapaxes(K, -1, -2)
     small = th < 1e-8
     ths = np.where(small, 1.0, th)
     a = np.where(small, 1.0 - th2 / 6.0, np.sin(ths) / ths)
     b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
-    # K K = omega omega^T - |omega|^2 I (no stacked matrix product)
-    return (1.0 - b * th2) * np.eye(3) + a * K + b * (omega[..., :, None] * omega[..., None, :])
+    # I + a K + b K K, with K K = omega omega^T - |omega|^2 I (no stacked matrix product)
+    R = b * (omega[:, None] * omega[None, :])
+    diag = 1.0 - b * th2
+    for i in range(3):
+        R[i, i] += diag
+    ax, ay, az = a * omega[0], a * omega[1], a * omega[2]
+    R[0, 1] -= az
+    R[1, 0] += az
+    R[0, 2] += ay
+    R[2, 0] -= ay
+    R[1, 2] -= ax
+    R[2, 1] += ax
+    return R
 
 
 def complete_rotation(Q: np.ndarray) -> np.ndarray:
@@ -114,35 +129,59 @@ def fit_cameras(
 
     # Every quantity below depends on the data only through these per-frame moments, so the
     # iterations cost O(F), not O(F L): G = B^T w B (3x3), H = W^T w B (2x3), c0 = sum w |W|^2.
-    wB = w[..., None] * Bx
-    G = np.swapaxes(wB, -1, -2) @ Bx
-    H = np.swapaxes(W, -1, -2) @ wB
-    c0 = np.einsum("fl,fli,fli->f", w, W, W)
+    G, H, c0 = _data_moments(W, Bx, w)
+    R0e = None if R0 is None else np.moveaxis(np.broadcast_to(np.asarray(R0, float), (F, 3, 3)), 0, -1).copy()
+    s, R = fit_to_moments(G, H, c0, ok.sum(-1) >= 2, R0=R0e, n_iter=n_iter, fill=fill)
+    R = np.ascontiguousarray(np.moveaxis(R, -1, 0))
+    P = s[:, None, None] * R[:, :2]
+    return (P, s, R) if return_rotation else P
+
+
+def fit_to_moments(G: np.ndarray, H: np.ndarray, c0: np.ndarray, usable: np.ndarray, *, R0: Any = None,
+                   n_iter: int = 5, fill: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The cameras of :func:`fit_cameras` from the frames' moments, matrices entries first (frames
+    last): G = sum_l w b b^T (3, 3, F), H = sum_l w x b^T (2, 3, F), c0 = sum_l w |x|^2 (F,).
+    ``usable`` (F,): the frames with two or more weighted bones (the others are filled as in
+    :func:`fit_cameras`); R0 (3, 3, F) a warm start. Returns the scales s (F,) and rotations R
+    (3, 3, F), entries first: a product of stacks of 3 x 3 matrices is then a few passes over
+    F-vectors, several times faster than a stacked matmul."""
+    F = len(c0)
     if R0 is None:
         # Closed form: affine M = H G^-1, projected onto s * (orthonormal rows) by one SVD.
-        ridge = 1e-9 * np.trace(G, axis1=-2, axis2=-1)[:, None, None] + 1e-300
-        M = H @ np.linalg.inv(G + ridge * np.eye(3))
-        R = complete_rotation(_orthonormal_rows(M))
+        Gs = np.moveaxis(G, -1, 0)
+        ridge = 1e-9 * np.trace(Gs, axis1=-2, axis2=-1)[:, None, None] + 1e-300
+        M = np.moveaxis(H, -1, 0) @ np.linalg.inv(Gs + ridge * np.eye(3))
+        R = np.ascontiguousarray(np.moveaxis(complete_rotation(_orthonormal_rows(M)), 0, -1))
     else:
-        R = np.broadcast_to(np.asarray(R0, float), (F, 3, 3)).copy()
+        R = np.asarray(R0, dtype=float)
     s, R, cost = _scale_and_cost(G, H, c0, R)
     lam = np.full(F, 1e-6)
     for _ in range(n_iter):
         s, R, cost, lam = _gauss_newton_step(G, H, c0, s, R, cost, lam)
-
-    usable = ok.sum(-1) >= 2
     s = np.abs(s)
     if fill and not usable.all() and usable.any():
         idx = np.flatnonzero(usable)
         near = idx[np.clip(np.searchsorted(idx, np.arange(F)), 0, len(idx) - 1)]
         prev = idx[np.clip(np.searchsorted(idx, np.arange(F)) - 1, 0, len(idx) - 1)]
         near = np.where(np.abs(prev - np.arange(F)) <= np.abs(near - np.arange(F)), prev, near)
-        s, R = s[near], R[near]
+        s, R = s[near], R[..., near]
     elif not usable.all():
         s = np.where(usable, s, np.nan)
-        R = np.where(usable[:, None, None], R, np.nan)
-    P = s[:, None, None] * R[:, :2]
-    return (P, s, R) if return_rotation else P
+        R = np.where(usable, R, np.nan)
+    return s, R
+
+
+def bone_moments(W: np.ndarray, B: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The moments G = sum_l w b b^T (3, 3, F) and H = sum_l w x b^T (2, 3, F) of
+    :func:`fit_to_moments` from frames-last arrays: 2D bones W (2, L, F), 3D bones B (3, L, F),
+    weights w (L, F) (0 where a bone is unusable, with W 0 there). (c0 = sum_l w |x|^2 is
+    ``(w * (W[0] ** 2 + W[1] ** 2)).sum(0)``.)"""
+    wB = B * w
+    G = np.empty((3, 3, B.shape[-1]))
+    for i in range(3):
+        for j in range(i, 3):
+            G[i, j] = G[j, i] = (wB[i] * B[j]).sum(0)
+    return G, (W[:, None] * wB[None]).sum(2)
 
 
 def _orthonormal_rows(M: np.ndarray) -> np.ndarray:
@@ -165,28 +204,38 @@ def _orthonormal_rows(M: np.ndarray) -> np.ndarray:
     return Q
 
 
+def _data_moments(W: np.ndarray, B: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """G = sum_l w b b^T (3, 3, F), H = sum_l w x b^T (2, 3, F) and c0 = sum_l w |x|^2 (F,) of 2D
+    bones W (F, L, 2), 3D bones B (F, L, 3) and weights w (F, L)."""
+    wB = w[..., None] * B
+    G = np.swapaxes(wB, -1, -2) @ B  # a stacked matmul over L is the fastest way here
+    H = np.swapaxes(W, -1, -2) @ wB
+    c0 = np.einsum("fl,fli,fli->f", w, W, W)
+    return np.ascontiguousarray(G.transpose(1, 2, 0)), np.ascontiguousarray(H.transpose(1, 2, 0)), c0
+
+
 def _mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Stacked products of small matrices."""
-    return a @ b
+    """Products of stacks of small matrices kept entries first: (n, k, F) x (k, m, F) -> (n, m, F)."""
+    return (a[:, :, None] * b[None]).sum(1)
 
 
 def _moments(G: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Moments in camera axes: Gy = R G R^T (3x3) and Hy = H R^T (2x3)."""
-    Rt = np.swapaxes(R, -1, -2)
+    """Moments in camera axes: Gy = R G R^T (3x3) and Hy = H R^T (2x3), entries first."""
+    Rt = R.transpose(1, 0, 2)
     return _mm(_mm(R, G), Rt), _mm(H, Rt)
 
 
 def _scale_and_cost(G, H, c0, R):
     """Best scale for rotation R and the resulting cost, from the first two rows of R only."""
-    R2 = R[:, :2]
-    num = (H * R2).sum((1, 2))  # tr(H R2^T)
-    den = ((R2 @ G) * R2).sum((1, 2))  # tr(R2 G R2^T)
+    R2 = R[:2]
+    num = (H * R2).sum((0, 1))  # tr(H R2^T)
+    den = (_mm(R2, G) * R2).sum((0, 1))  # tr(R2 G R2^T)
     s = np.where(den > 0, num / np.where(den > 0, den, 1.0), 1.0)
     # A negative scale is a rotation by pi about the view axis: fold it into R.
     flip = s < 0
     if flip.any():
         R = R.copy()
-        R[flip, :2] *= -1.0
+        R[:2, :, flip] *= -1.0
         s = np.abs(s)
     return s, R, c0 - s * np.abs(num)
 
@@ -197,33 +246,33 @@ def _gauss_newton_step(G, H, c0, s, R, cost, lam):
     The Jacobians of a predicted 2D bone (x, y) w.r.t. (ds, w1, w2, w3), for R <- exp([w]x) R, are
     linear in the camera-axes bone y: Jx = (y0, 0, s y2, -s y1), Jy = (y1, -s y2, 0, s y0), so the
     normal matrix sum_l w (Jx Jx^T + Jy Jy^T) and the gradient are written out in the moments
-    Gy = sum w y y^T and Hy (no per-frame matrix products).
+    Gy = sum w y y^T and Hy (no per-frame matrix products). Matrices entries first, (3, 3, F).
     """
     Gy, Hy = _moments(G, H, R)
-    g00, g02 = Gy[:, 0, 0], Gy[:, 0, 2]
-    g11, g12, g22 = Gy[:, 1, 1], Gy[:, 1, 2], Gy[:, 2, 2]
+    g00, g02 = Gy[0, 0], Gy[0, 2]
+    g11, g12, g22 = Gy[1, 1], Gy[1, 2], Gy[2, 2]
     s2 = s * s
     # the normal matrix, entries (F,) (those at (0, 3) and (1, 2) are 0), Levenberg-damped
     diag = [g00 + g11, s2 * g22, s2 * g22, s2 * (g00 + g11)]
     ridge = 1e-12 * (diag[0] + diag[1] + diag[2] + diag[3] + 1e-300)
     N = [[a + lam * a + ridge if i == j else None for j, a in enumerate(diag)] for i in range(4)]
     N[1][0], N[2][0], N[3][0], N[2][1], N[3][1], N[3][2] = -s * g12, s * g02, 0.0, 0.0, -s2 * g02, -s2 * g12
-    vx = Hy[:, 0] - s[:, None] * Gy[:, :, 0]  # sum_l w (observed x - predicted x) y
-    vy = Hy[:, 1] - s[:, None] * Gy[:, :, 1]
-    g = [vx[:, 0] + vy[:, 1], -s * vy[:, 2], s * vx[:, 2], s * (vy[:, 0] - vx[:, 1])]
+    vx = Hy[0] - s * Gy[:, 0]  # sum_l w (observed x - predicted x) y, (3, F)
+    vy = Hy[1] - s * Gy[:, 1]
+    g = [vx[0] + vy[1], -s * vy[2], s * vx[2], s * (vy[0] - vx[1])]
     d = _solve_spd4(N, g)
-    R_new = _mm(rodrigues(d[:, 1:]), R)
+    R_new = _mm(_rodrigues_entries(d[1:]), R)
     s_new, R_new, c_new = _scale_and_cost(G, H, c0, R_new)
     better = c_new <= cost
     s = np.where(better, s_new, s)
-    R = np.where(better[:, None, None], R_new, R)
+    R = np.where(better, R_new, R)
     cost = np.where(better, c_new, cost)
     lam = np.where(better, lam * 0.3, lam * 10.0)
     return s, R, cost, lam
 
 
 def _solve_spd4(N: list, b: list) -> np.ndarray:
-    """(F, 4) solutions of F symmetric positive definite 4 x 4 systems given entry by entry: N[i][j]
+    """(4, F) solutions of F symmetric positive definite 4 x 4 systems given entry by entry: N[i][j]
     (i >= j) and b[i] are (F,) arrays (or 0), by a Cholesky factorisation written out on them
     (several times faster than a batched np.linalg.solve of (F, 4, 4) systems)."""
     L = [[0.0] * 4 for _ in range(4)]
@@ -237,7 +286,7 @@ def _solve_spd4(N: list, b: list) -> np.ndarray:
     x: list = [0.0] * 4
     for i in (3, 2, 1, 0):
         x[i] = (y[i] - sum(L[k][i] * x[k] for k in range(i + 1, 4))) / L[i][i]
-    return np.stack(x, -1)
+    return np.stack(x)
 
 
 def project(poses: Any, cameras: Any, translations: Any = None) -> np.ndarray:

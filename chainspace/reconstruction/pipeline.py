@@ -31,7 +31,7 @@ from ..cameras.weak import fit_cameras, smooth_scales
 from ..chain import KinematicChain
 from ..errors import CameraError, ChainspaceError, ConvergenceWarning, TrackError, is_real
 from .kcs import (bone_observations, fit_translations, kcs_factorize, reprojection_rms,
-                  reprojection_with_translations)
+                  reprojection_with_translations, seen_points, where_seen)
 from ..metrics import error_3d
 from .refine import refine_bones
 
@@ -110,9 +110,9 @@ class Reconstruction:
 
 
 def _rms(tracks, weights, pred) -> float:
-    seen = np.isfinite(tracks).all(-1) & np.isfinite(pred).all(-1)
+    seen = seen_points(tracks) & seen_points(pred)
     w = np.where(seen, weights, 0.0)
-    d2 = np.where(seen, ((np.where(seen[..., None], tracks - np.nan_to_num(pred), 0.0)) ** 2).sum(-1), 0.0)
+    d2 = np.where(seen, (where_seen(tracks - np.nan_to_num(pred), seen) ** 2).sum(-1), 0.0)
     return float(np.sqrt((w * d2).sum() / max(w.sum(), 1e-300)))
 
 
@@ -154,7 +154,7 @@ def _check_inputs(tracks, chain, init_pose, confidence, truth):
             raise TrackError("confidences must be weights in [0, 1] (NaN counts as 0)")
         c = np.where(np.isfinite(c), c, 0.0)
         given = True
-    seen = np.isfinite(W).all(-1) & (c > 0)
+    seen = seen_points(W) & (c > 0)
     never = np.flatnonzero(~seen.any(0))
     if len(never):
         names = ", ".join(repr(chain.joints[j]) for j in never[:5])
@@ -173,15 +173,14 @@ def _check_inputs(tracks, chain, init_pose, confidence, truth):
             f"a reconstruction needs at least {MIN_FRAMES} frames in which two whole bones are seen (both "
             f"ends of each; the camera is fitted to bones); got {int(two_bones.sum())}"
         )
-    pts = W[seen]
-    huge = np.abs(np.where(seen[..., None], W, 0.0)) > 1e12
+    huge = np.abs(where_seen(W, seen)) > 1e12
     if huge.any():
         f, j, _ = np.argwhere(huge)[0]
         raise TrackError(f"tracks at frame {f}, joint {chain.joints[j]!r} reach {abs(W[f, j]).max():.3g}: "
                          "not an image coordinate (values beyond 1e12 cannot be used)")
-    if np.ptp(pts, axis=0).max() <= 0:
+    if max(np.ptp(W[..., k][seen]) for k in (0, 1)) <= 0:  # one coordinate at a time: fast
         raise TrackError("tracks are constant: every visible point is at the same image position")
-    W = np.where(seen[..., None], W, np.nan)
+    W = where_seen(W, seen, np.nan)
     c = np.where(seen, c, 0.0)
     if init_pose is None:
         if chain.rest_pose is None:
@@ -238,7 +237,7 @@ def _rigid(W, c, chain, X0):
     """Tomasi-Kanade: rank-3 factorization of the centred tracks, metric upgrade, scale from X0."""
     F, J = W.shape[:2]
     seen = c > 0
-    M2 = np.swapaxes(np.where(seen[..., None], W, 0.0), 1, 2).reshape(2 * F, J)  # rows f0x, f0y, f1x, ...
+    M2 = np.swapaxes(where_seen(W, seen), 1, 2).reshape(2 * F, J)  # rows f0x, f0y, f1x, ...
     mask2 = np.repeat(seen, 2, axis=0)
     if not mask2.all():
         # Missing entries: each row is a rank-3 part (cameras times shape) plus the row's translation.
@@ -300,17 +299,18 @@ def _refine(W, c, chain, X0, kcs, T, max_iter, tol, options):
     scales = smooth_scales(kcs.scales, (wb > 0).sum(-1))
     cameras = scales[:, None, None] * R[:, :2]
 
-    D = np.ascontiguousarray(chain.D)
-    seen = np.isfinite(W).all(-1)
-    Wt = np.swapaxes(np.where(seen[..., None], W, 0.0), 1, 2)  # (F, 2, J)
-    cw = np.where(seen, c, 0.0)
+    # the reprojection monitor runs frames last (see kcs.reprojection_with_translations)
+    Dt = np.ascontiguousarray(chain.D.T)
+    seen = seen_points(W)
+    Wt = np.ascontiguousarray(where_seen(W, seen).transpose(2, 1, 0))  # (2, J, F)
+    cw = np.ascontiguousarray(np.where(seen, c, 0.0).T)
+    Pt = np.ascontiguousarray(cameras.transpose(1, 2, 0))
 
     def monitor(x):
-        B = np.swapaxes(to_world(x), 1, 2)  # (F, 3, nb) -> poses by one matrix product over all frames
-        Xt = (B.reshape(-1, nb) @ D).reshape(len(B), 3, -1)
-        hist["reprojection"].append(reprojection_with_translations(Wt, cw, Xt, cameras)[0])
+        Xt = Dt @ np.ascontiguousarray(to_world(x).transpose(2, 1, 0))  # (3, J, F)
+        hist["reprojection"].append(reprojection_with_translations(Wt, cw, Xt, Pt)[0])
         if T is not None:
-            hist.setdefault("error_3d", []).append(error_3d(np.swapaxes(Xt, 1, 2), T))
+            hist.setdefault("error_3d", []).append(error_3d(Xt.transpose(2, 1, 0), T))
 
     res = refine_bones(Wb[:, :nb], wb[:, :nb], scales, prior, x0, max_iter=max_iter, tol=tol,
                        parent_bone=_prior_parents(chain), monitor=monitor, **options)
@@ -455,7 +455,8 @@ def _run(W_in, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis,
     centred and divided by their typical spread, so any unit from 1e-6 to 1e12 behaves the same);
     cameras, translations and image-unit histories are mapped back at the end."""
     seen = c > 0
-    center = W_in[seen].mean(0)
+    z = where_seen(W_in, seen).view(np.complex128).sum() / seen.sum()  # a point as x + iy: fast sums
+    center = np.array([z.real, z.imag])
     unit = _spread(W_in, seen)
     W = (W_in - center) / unit
     options = dict(refine_options or {})
@@ -488,7 +489,7 @@ def _run_perspective(W_px, c, given, X0, T, chain, method, max_iter, tol, progre
     # fold of the distortion polynomial, where the model is not one-to-one)
     with np.errstate(all="ignore"):
         miss = np.linalg.norm(camera.distort(rays) - W_px, axis=-1)
-    seen = np.isfinite(W_px).all(-1)
+    seen = seen_points(W_px)
     bad = seen & ~(miss < UNDISTORT_TOL_PX)
     rays[bad] = np.nan
     if bad.sum() > 0.5 * seen.sum():
@@ -503,7 +504,7 @@ def _run_perspective(W_px, c, given, X0, T, chain, method, max_iter, tol, progre
         opts["delta"] = opts["delta"] / float(np.sqrt(camera.fx * camera.fy))
     # virtual cameras turned towards the subject in every frame: there weak perspective is accurate
     Q = centring_rotations(rays, c)
-    rays_real, rays = rays, turn_rays(rays, Q)
+    rays = turn_rays(rays, Q)
     persp: dict[str, list[float]] = {"reprojection": [], "change": []}
     timings: dict[str, float] = {}
     Wc, rec = rays, None
@@ -539,7 +540,7 @@ def _run_perspective(W_px, c, given, X0, T, chain, method, max_iter, tol, progre
         corrected = rays * (1.0 + scale[:, None] * d)[..., None]
         seen = c > 0
         size = _spread(rays, seen)
-        change = float(np.abs(np.where(seen[..., None], corrected - Wc, 0.0)).max()) / size
+        change = float(np.abs(where_seen(corrected - Wc, seen)).max()) / size
         persp["change"].append(change)
         if progress:
             print(f"chainspace: perspective pass {i + 1}: reprojection {persp['reprojection'][-1]:.3g} px, "
@@ -592,8 +593,10 @@ def _real_cameras(P, Q):
 def _spread(W, seen):
     """Typical distance of a frame's visible points from their centroid (median over frames)."""
     n = np.maximum(seen.sum(1), 1)
-    m = np.where(seen[..., None], W, 0.0).sum(1) / n[:, None]
-    d = np.sqrt(np.where(seen, ((np.where(seen[..., None], W, 0.0) - m[:, None]) ** 2).sum(-1), 0.0).sum(1) / n)
+    z = where_seen(W, seen).view(np.complex128)[..., 0]  # a point as one complex number: fast sums
+    m = z.sum(1) / n
+    dz = np.where(seen, z - m[:, None], 0.0)
+    d = np.sqrt((dz.real**2 + dz.imag**2).sum(1) / n)
     d = d[(seen.sum(1) >= 2) & (d > 0)]
     unit = float(np.median(d)) if len(d) else float(np.ptp(W[seen], axis=0).max())
     return unit if unit > 0 else 1.0

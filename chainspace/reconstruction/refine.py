@@ -67,6 +67,10 @@ __all__ = ["refine_bones", "RefineResult", "objective_terms"]
 # (block, bones) arrays) stay in the processor's cache, where whole sequences of 100,000 frames did not
 # (the objective alone: 3.5-8 microseconds a frame on 100,000 frames, 3.9 on 10,000; 1.9 in blocks).
 FRAME_BLOCK = 2048
+# Unknowns per banded solve of the Gauss-Newton step (the bones one after the other; one bone a solve
+# from 43,691 frames): the banded matrix, 56 bytes an unknown, stays small enough to be reused
+# between solves instead of being mapped (and page-faulted) afresh.
+SOLVE_GROUP = 2**17
 
 
 @dataclass
@@ -333,9 +337,14 @@ def _prefix_minplus(init: np.ndarray, T: np.ndarray) -> np.ndarray:
     n, K = T.shape[3:]
     b = max(int(np.sqrt(K)), 1)
     nb = -(-K // b)
-    Tp = np.zeros((2, 2, 2, n, nb * b))  # padded at the end: the messages there are cut off
-    Tp[..., :K] = T
-    Tb = np.ascontiguousarray(Tp.reshape(2, 2, 2, n, nb, b).transpose(5, 0, 1, 2, 3, 4))  # (b, a, bb, c, n, nb)
+    # (b, a, bb, c, n, nb), the last block padded with zeros (the messages there are cut off)
+    Tb = np.empty((b, 2, 2, 2, n, nb))
+    full = K // b
+    Tb[..., :full] = np.moveaxis(T[..., :full * b].reshape(2, 2, 2, n, full, b), -1, 0)
+    if full < nb:
+        rest = K - full * b
+        Tb[:rest, ..., full] = np.moveaxis(T[..., full * b:], -1, 0)
+        Tb[rest:, ..., full] = 0.0
     # prod[s, bb, c]: least cost from the pair s at a block's start to the pair (bb, c) after j + 1 steps
     prod = np.full((4, 2, 2, n, nb), np.inf)
     first = prod.reshape(2, 2, 2, 2, n, nb)
@@ -414,30 +423,28 @@ def _gauss_newton(pb: _Problem, x: np.ndarray, l: np.ndarray) -> np.ndarray:
     F, L = x.shape[:2]
     kl, ks, kp = pb.lam_len * pb.s2, pb.lam_smooth * pb.s2, pb.lam_prior * pb.s2
     d0, d1, d2 = _smooth_bands(F)
-    # gradient (half of dE/dx) per frame and bone, IRLS weights h and unit bones u: the per-frame
-    # terms a block of frames at a time (the temporaries stay in cache), the smoothness after
-    g, u, h = np.empty(x.shape), np.empty(x.shape), np.empty((F, L))
-    for f in range(0, F, FRAME_BLOCK):
-        fr = slice(f, f + FRAME_BLOCK)
-        xb = x[fr]
-        res = pb.s[fr, None, None] * xb[..., :2] - pb.Wb[fr]  # (frames, L, 2)
-        r = np.sqrt((res * res).sum(-1))
-        h[fr] = pb.wb[fr] * np.where(r <= pb.delta, 1.0, pb.delta / np.maximum(r, 1e-300))
-        nx = np.sqrt((xb * xb).sum(-1))
-        u[fr] = xb / np.maximum(nx, 1e-12)[..., None]
-        g[fr] = kl * (nx - l)[..., None] * u[fr] + kp * (xb - np.moveaxis(pb.prior_coords(x, None, fr), 0, -1))
-        g[fr, :, :2] += (h[fr] * pb.s[fr, None])[..., None] * res
-    a = _accel(x)
-    if F > 2:
-        g[:-2] += ks * a
-        g[1:-1] -= 2.0 * ks * a
-        g[2:] += ks * a
-    ut = np.ascontiguousarray(np.swapaxes(u, 0, 1))  # (L, F, 3)
-    hs2 = (h * pb.s[:, None] ** 2).T
-    rhs = -np.swapaxes(g, 0, 1)
+    # The gradient (half of dE/dx), IRLS weights h and unit bones u a block of frames at a time,
+    # coordinates first (3, frames, L) (products over a short last axis are several times slower),
+    # written out bone-major (L, F, 3), the order of the banded solve's unknowns: whole-sequence
+    # temporaries would leave the cache, and at 100,000 frames cost a page fault every 4 kB.
+    xc = _coords(x)
+    ut, rhs, hs2 = np.empty((L, F, 3)), np.empty((L, F, 3)), np.empty((L, F))
+    for f0 in range(0, F, FRAME_BLOCK):
+        fr = slice(f0, min(f0 + FRAME_BLOCK, F))
+        xb, s = xc[:, fr], pb.s[fr, None]
+        res = s * xb[:2] - pb.Wb_c[:, fr]  # (2, frames, L)
+        r = np.sqrt(res[0] ** 2 + res[1] ** 2)
+        h = pb.wb[fr] * np.where(r <= pb.delta, 1.0, pb.delta / np.maximum(r, 1e-300))
+        nx = np.sqrt(_cdot(xb, xb))
+        u = xb / np.maximum(nx, 1e-12)
+        g = (kl * (nx - l)) * u + kp * (xb - pb.prior_coords(x, None, fr))
+        g[:2] += (h * s) * res
+        _add_smoothness_gradient(g, xc, fr, ks)
+        ut[:, fr] = u.transpose(2, 1, 0)
+        rhs[:, fr] = -g.transpose(2, 1, 0)
+        hs2[:, fr] = (h * s**2).T
     step = np.empty_like(ut)
-    # bones in groups of about a million unknowns: few calls, bounded memory for long sequences
-    for part in np.array_split(np.arange(L), -(-3 * F * L // 2**20)):
+    for part in np.array_split(np.arange(L), min(-(-3 * F * L // SOLVE_GROUP), L)):
         up = ut[part]
         # lower banded storage, ab[d, i] = M[i + d, i] (LAPACK's banded Cholesky runs about twice as
         # fast on it as on the upper form)
@@ -453,6 +460,21 @@ def _gauss_newton(pb: _Problem, x: np.ndarray, l: np.ndarray) -> np.ndarray:
         step[part] = solveh_banded(ab.reshape(7, -1), rhs[part].reshape(-1), lower=True,
                                    check_finite=False).reshape(up.shape)
     return x + np.swapaxes(step, 0, 1)
+
+
+def _add_smoothness_gradient(g: np.ndarray, xc: np.ndarray, frames: slice, ks: float) -> None:
+    """Add the smoothness term's gradient ks (D2^T D2 x) to g (3, frames, L), the block ``frames`` of
+    the whole gradient, from xc (3, F, L): frame i gets ks a_i - 2 ks a_(i-1) + ks a_(i-2), in that
+    order, with the accelerations a_k = x_(k+2) - 2 x_(k+1) + x_k (0 <= k <= F - 3)."""
+    F = xc.shape[1]
+    f0, f1 = frames.start, frames.stop
+    if F < 3:
+        return
+    k0, k1 = max(f0 - 2, 0), min(f1, F - 2)  # the accelerations the block reaches
+    a = xc[:, k0 + 2:k1 + 2] - 2.0 * xc[:, k0 + 1:k1 + 1] + xc[:, k0:k1]
+    for lag, factor, first, last in ((0, ks, f0, min(f1, F - 2)), (1, -2.0 * ks, max(f0, 1), min(f1, F - 1)),
+                                     (2, ks, max(f0, 2), f1)):
+        g[:, first - f0:last - f0] += factor * a[:, first - lag - k0:last - lag - k0]
 
 
 def refine_bones(
