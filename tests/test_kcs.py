@@ -60,16 +60,38 @@ def test_per_frame_weights_shortcut_matches_the_per_bone_gradient():
 
 def test_svt_matches_a_full_svd():
     """Singular value thresholding from the Gram matrix, through all directions or through the few
-    kept ones (low thresholded rank), equals U max(sigma - tau, 0) V^T from a full SVD."""
-    from chainspace.reconstruction.kcs import _svt
+    kept ones (low thresholded rank), equals U max(sigma - tau, 0) V^T from a full SVD; the nuclear
+    norm of the result is the thresholded one."""
+    from chainspace.reconstruction.kcs import _shrinkage, _svt
 
     A = np.random.default_rng(5).normal(size=(50, 3, 15)) * np.logspace(0, -3, 15)
-    U, sig, Vt = np.linalg.svd(A.reshape(-1, 15), full_matrices=False)
+    M = A.reshape(-1, 15)
+    U, sig, Vt = np.linalg.svd(M, full_matrices=False)
     for tau in (0.0, 0.5 * sig[3], 0.5 * sig[12], 2.0 * sig[0]):  # all kept, a few (two thin products), most, none
-        out, nuc = _svt(np.ascontiguousarray(A.transpose(1, 2, 0)), tau)  # frames last
+        out = _svt(np.ascontiguousarray(A.transpose(1, 2, 0)), tau, out=np.empty((3, 15, 50)))  # frames last
         shrunk = np.maximum(sig - tau, 0.0)
         np.testing.assert_allclose(out.transpose(2, 0, 1).reshape(-1, 15), (U * shrunk) @ Vt, atol=1e-10 * sig[0])
-        assert nuc == pytest.approx(shrunk.sum())
+        assert _shrinkage(M.T @ M, tau)[2] == pytest.approx(shrunk.sum())
+
+
+@pytest.mark.parametrize("missing", [False, True])
+def test_blocks_of_frames_give_the_whole_sequences_kcs(monkeypatch, missing):
+    """The KCS stage's per-frame work runs blocks.FRAMES_LAST_BLOCK frames at a time:
+    blocks of 7 frames give what one block of all frames gives (sums in another order: rounding)."""
+    import chainspace.blocks as blocks
+
+    chain, X, W = _case(noise=1.0, F=40)
+    c = np.ones(W.shape[:2])
+    if missing:
+        c = np.random.default_rng(1).uniform(0.2, 1.0, W.shape[:2])
+    out = {}
+    for block in (7, 10_000):
+        monkeypatch.setattr(blocks, "FRAMES_LAST_BLOCK", block)
+        out[block] = kcs_factorize(W, c, chain, chain.rest_pose)
+    assert out[7].n_iter == out[10_000].n_iter
+    np.testing.assert_allclose(out[7].poses, out[10_000].poses, rtol=0, atol=1e-9 * np.abs(out[7].poses).max())
+    np.testing.assert_allclose(out[7].cameras, out[10_000].cameras, rtol=1e-9)
+    np.testing.assert_allclose(out[7].history["reprojection"], out[10_000].history["reprojection"], rtol=1e-9)
 
 
 @pytest.mark.parametrize("uniform", [True, False])

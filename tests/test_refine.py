@@ -80,9 +80,10 @@ def test_viterbi_signs_are_the_exact_minimiser(F):
 
 
 def test_blocks_of_frames_give_the_whole_sequences_numbers(monkeypatch):
-    """The objective and the Gauss-Newton step are computed FRAME_BLOCK frames at a time (for the
+    """The objective and the Gauss-Newton step are computed blocks.FRAME_BLOCK frames at a time (for the
     cache): blocks of 7 frames, whose accelerations and parent bones reach across block boundaries,
     give what one block of all frames gives."""
+    import chainspace.blocks as blocks
     import chainspace.reconstruction.refine as R
 
     from chainspace.reconstruction.pipeline import _prior_parents
@@ -95,7 +96,7 @@ def test_blocks_of_frames_give_the_whole_sequences_numbers(monkeypatch):
     x = x0 * 1.05
     out = {}
     for block in (7, 10_000):
-        monkeypatch.setattr(R, "FRAME_BLOCK", block)
+        monkeypatch.setattr(blocks, "FRAME_BLOCK", block)
         out[block] = (R.objective_terms(pb, x, l), R.objective_terms(pb, x, l, [2, 5]), R._gauss_newton(pb, x, l),
                       pb.prior(x))
     for a, b in zip(out[7][:2], out[10_000][:2]):

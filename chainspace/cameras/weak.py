@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from ..blocks import frame_blocks, join_blocks
 from ..errors import TrackError
 
 __all__ = ["fit_cameras", "fit_to_moments", "bone_moments", "project", "camera_scale", "complete_rotation", "rodrigues",
@@ -146,18 +147,9 @@ def fit_to_moments(G: np.ndarray, H: np.ndarray, c0: np.ndarray, usable: np.ndar
     (3, 3, F), entries first: a product of stacks of 3 x 3 matrices is then a few passes over
     F-vectors, several times faster than a stacked matmul."""
     F = len(c0)
-    if R0 is None:
-        # Closed form: affine M = H G^-1, projected onto s * (orthonormal rows) by one SVD.
-        Gs = np.moveaxis(G, -1, 0)
-        ridge = 1e-9 * np.trace(Gs, axis1=-2, axis2=-1)[:, None, None] + 1e-300
-        M = np.moveaxis(H, -1, 0) @ np.linalg.inv(Gs + ridge * np.eye(3))
-        R = np.ascontiguousarray(np.moveaxis(complete_rotation(_orthonormal_rows(M)), 0, -1))
-    else:
-        R = np.asarray(R0, dtype=float)
-    s, R, cost = _scale_and_cost(G, H, c0, R)
-    lam = np.full(F, 1e-6)
-    for _ in range(n_iter):
-        s, R, cost, lam = _gauss_newton_step(G, H, c0, s, R, cost, lam)
+    # the frames are independent: a block of frames at a time, whose temporaries stay in cache
+    s, R = join_blocks([_fit_block(G[..., b], H[..., b], c0[b], None if R0 is None else R0[..., b], n_iter)
+                        for b in frame_blocks(F, frames_last=True)])
     s = np.abs(s)
     if fill and not usable.all() and usable.any():
         idx = np.flatnonzero(usable)
@@ -168,6 +160,23 @@ def fit_to_moments(G: np.ndarray, H: np.ndarray, c0: np.ndarray, usable: np.ndar
     elif not usable.all():
         s = np.where(usable, s, np.nan)
         R = np.where(usable, R, np.nan)
+    return s, R
+
+
+def _fit_block(G, H, c0, R0, n_iter):
+    """:func:`fit_to_moments` on one block of frames, before the unusable frames are filled."""
+    if R0 is None:
+        # Closed form: affine M = H G^-1, projected onto s * (orthonormal rows) by one SVD.
+        Gs = np.moveaxis(G, -1, 0)
+        ridge = 1e-9 * np.trace(Gs, axis1=-2, axis2=-1)[:, None, None] + 1e-300
+        M = np.moveaxis(H, -1, 0) @ np.linalg.inv(Gs + ridge * np.eye(3))
+        R = np.ascontiguousarray(np.moveaxis(complete_rotation(_orthonormal_rows(M)), 0, -1))
+    else:
+        R = np.asarray(R0, dtype=float)
+    s, R, cost = _scale_and_cost(G, H, c0, R)
+    lam = np.full(len(c0), 1e-6)
+    for _ in range(n_iter):
+        s, R, cost, lam = _gauss_newton_step(G, H, c0, s, R, cost, lam)
     return s, R
 
 

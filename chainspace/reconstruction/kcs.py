@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from ..blocks import frame_blocks, join_blocks
 from ..cameras.weak import bone_moments, fit_cameras, fit_to_moments
 
 __all__ = ["kcs_factorize", "KCSResult", "bone_observations", "fit_translations", "reprojection_rms",
@@ -112,12 +113,16 @@ def reprojection_with_translations(Wt: np.ndarray, weights: np.ndarray, Xt: np.n
                                    P: np.ndarray) -> tuple[float, np.ndarray]:
     """Weighted reprojection RMS (image units) of poses Xt (3, J, F) under cameras P (2, 3, F) with
     the best translation per frame, and those translations (F, 2). Tracks Wt (2, J, F) with 0
-    where unseen and weights (J, F) 0 there. Frames last: every per-frame product is then a pass
-    over F-vectors."""
-    d = Wt - _per_frame_product(P, Xt)
-    t = (d * weights).sum(1) / np.maximum(weights.sum(0), 1e-300)
-    r2 = (weights * (d - t[:, None]) ** 2).sum()
-    return float(np.sqrt(r2 / max(weights.sum(), 1e-300))), t.T
+    where unseen and weights (J, F) 0 there. Frames last, a block of frames at a time: every
+    per-frame product is then a pass over F-vectors that stay in cache."""
+    t, r2 = np.empty((Wt.shape[-1], 2)), 0.0
+    for b in frame_blocks(Wt.shape[-1], frames_last=True):
+        w = weights[:, b]
+        d = Wt[..., b] - _per_frame_product(P[..., b], Xt[..., b])
+        tb = (d * w).sum(1) / np.maximum(w.sum(0), 1e-300)
+        r2 += float((w * (d - tb[:, None]) ** 2).sum())
+        t[b] = tb.T
+    return float(np.sqrt(r2 / max(weights.sum(), 1e-300))), t
 
 
 def _per_frame_product(M: np.ndarray, X: np.ndarray, transpose: bool = False) -> np.ndarray:
@@ -146,29 +151,28 @@ def _pose_basis(tracks, weights, P, X0, n_basis):
     return evecs[:, ::-1][:, :k].T.copy()
 
 
-def _svt(A: np.ndarray, tau: float, out: np.ndarray | None = None) -> tuple[np.ndarray, float]:
-    """Singular value thresholding of the stacked (3F x 3K) matrix A given frames last as (3, 3K, F):
-    A[i, :, k] is row i of frame k's A_k.
-
-    The right singular vectors V and values come from the small Gram matrix sum_i A[i] A[i]^T, and
-    the result is N A[i] for each i with N = V diag(gain) V^T: one product with an (3K x 3K)
-    matrix, or two thin ones through the r kept directions when r < 3K / 2 (the thresholded rank is
-    often low). ``out``: an array like A to write the result to."""
-    gram = A[0] @ A[0].T
-    gram += A[1] @ A[1].T
-    gram += A[2] @ A[2].T
+def _shrinkage(gram: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Singular value thresholding of a stacked (3F x 3K) matrix A from its Gram matrix A^T A
+    (3K x 3K): SVT(A) = A V_r G V_r^T, V_r the r right singular vectors whose values sigma exceed
+    tau, G = diag((sigma - tau) / sigma) (V and sigma from the Gram matrix's eigen-decomposition).
+    Returns V_r, V_r G and the thresholded nuclear norm."""
     evals, V = np.linalg.eigh(gram)
     sig = np.sqrt(np.maximum(evals, 0.0))
     shrunk = np.maximum(sig - tau, 0.0)
     keep = shrunk > 0
     Vk = V[:, keep]
-    Vg = Vk * (shrunk[keep] / sig[keep])
-    res = np.empty(A.shape) if out is None else out
+    return Vk, Vk * (shrunk[keep] / sig[keep]), float(shrunk.sum())
+
+
+def _svt(A: np.ndarray, tau: float, out: np.ndarray) -> np.ndarray:
+    """Singular value thresholding of the stacked (3F x 3K) matrix given frames last as A (3, 3K, F)
+    (A[i, :, k] is row i of frame k's A_k), into ``out``: the thresholded rows are V_r G V_r^T A[i],
+    one product with a 3K x 3K matrix, or two thin ones through the r kept directions when r < 3K / 2
+    (the thresholded rank is often low)."""
+    Vk, Vg, _ = _shrinkage(A[0] @ A[0].T + A[1] @ A[1].T + A[2] @ A[2].T, tau)
     if 2 * Vk.shape[1] < A.shape[1]:
-        np.matmul(Vk, Vg.T @ A, out=res)
-    else:
-        np.matmul(Vg @ Vk.T, A, out=res)
-    return res, float(shrunk.sum())
+        return np.matmul(Vk, Vg.T @ A, out=out)
+    return np.matmul(Vg @ Vk.T, A, out=out)
 
 
 def _solve_A(A, Rot, s, S, R, wb, taus):
@@ -179,8 +183,10 @@ def _solve_A(A, Rot, s, S, R, wb, taus):
     The steps run in camera axes, on Rot_k A_k: stacking the frames' rotations gives a block-diagonal
     orthogonal matrix, so the nuclear norm, and the SVT with it, are unchanged, while P_k becomes
     s_k [I 0]: the data term acts on the first two rows only and the gradient needs no per-frame
-    3 x 3 products."""
-    m = A.shape[1]
+    3 x 3 products. The turns into camera axes and back go a block of frames at a time (their
+    temporaries stay in cache)."""
+    m, F = A.shape[1:]
+    blocks = frame_blocks(F, frames_last=True)
     # Lipschitz constant of the gradient: max_k s_k^2 * lambda_max(S diag(w_k) S^T) <= max_k s_k^2 * ||S||^2 max w
     lip = float((s**2 * wb.max(0)).max() * np.linalg.norm(S, 2) ** 2)
     if lip <= 0:
@@ -192,10 +198,11 @@ def _solve_A(A, Rot, s, S, R, wb, taus):
     # which the SVT commutes with) S S^T = U diag(lam) U^T is diagonal, and the descent step is a
     # product with a per-frame, per-column factor.
     lam, U = np.linalg.eigh(S @ S.T) if uniform else (None, np.eye(m))
-    A_prev = U.T @ _per_frame_product(Rot, A)
+    A_prev = join_blocks([U.T @ _per_frame_product(Rot[..., b], A[..., b]) for b in blocks])
     if uniform:
         fac = 1.0 - (step * wk * s**2) * lam[:, None]  # (3K, F)
-        c = ((U.T @ S) @ R) * (step * wk * s)
+        US = U.T @ S
+        c = join_blocks([(US @ R[..., b]) * (step * wk[b] * s[b]) for b in blocks])
 
         def descent(Y):  # Y - step * gradient(Y) in place, the third row unchanged
             Y[:2] *= fac
@@ -203,16 +210,23 @@ def _solve_A(A, Rot, s, S, R, wb, taus):
             return Y
     else:
         sw = s * wb  # (L, F)
+        res, grad = np.empty(R.shape), np.empty((2, m, F))
 
-        def descent(Y):
-            res = (S.T @ Y[:2]) * s - R  # (2, L, F)
-            res *= sw
-            Y[:2] -= step * (S @ res)
+        def descent(Y):  # into two reused buffers: no array allocated per step
+            np.matmul(S.T, Y[:2], out=res)  # (2, L, F)
+            np.multiply(res, s, out=res)
+            np.subtract(res, R, out=res)
+            np.multiply(res, sw, out=res)
+            np.matmul(S, res, out=grad)
+            np.multiply(grad, step, out=grad)
+            Y[:2] -= grad
             return Y
-    # three buffers in turn, no array allocated per step: Y (descended in place), A_prev, spare
+    # three buffers in turn, no array allocated per step: Y (descended in place), A_prev, spare.
+    # (These steps run on the whole sequence: in place, they allocate nothing, and on blocks of frames
+    # (strided views of the frames-last arrays) numpy's passes were up to twice as slow.)
     Y, spare, t = A_prev.copy(), np.empty_like(A_prev), 1.0
     for tau in taus:
-        A_new, _ = _svt(descent(Y), step * tau, out=spare)
+        A_new = _svt(descent(Y), step * tau, out=spare)
         t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
         # Y = A_new + beta (A_new - A_prev), into the descended Y's buffer
         beta = (t - 1.0) / t_new
@@ -221,7 +235,7 @@ def _solve_A(A, Rot, s, S, R, wb, taus):
         Y += A_new
         spare, A_prev, t = A_prev, A_new, t_new
     del Y, spare  # the buffers go before the result is turned back to world axes (peak memory)
-    return _per_frame_product(Rot, U @ A_prev, transpose=True)
+    return join_blocks([_per_frame_product(Rot[..., b], U @ A_prev[..., b], transpose=True) for b in blocks])
 
 
 def kcs_factorize(
@@ -282,32 +296,42 @@ def kcs_factorize(
         return Xt, t
 
     B0f = B0[:, :, None]
+    blocks = frame_blocks(F, frames_last=True)
+
+    def residuals(P):  # R = W C - P B0 (2, L, F)
+        return join_blocks([Wl[..., b] - _per_frame_product(P[..., b], B0f) for b in blocks])
+
     Xt, t = record(np.broadcast_to(B0f, B0.shape + (F,)), P)
     # The threshold scale: spectral norm of the gradient at A = 0 (where every singular value would
     # be thresholded away if tau were larger).
-    R = Wl - _per_frame_product(P, B0f)
+    R = residuals(P)
     g0 = _per_frame_product(P, S @ (R * wl), transpose=True)  # (3, 3K, F)
     g0n = float(np.sqrt(max(np.linalg.eigvalsh(sum(g @ g.T for g in g0))[-1], 0)))
     tau_hi, tau_lo = tau_range[0] * g0n, tau_range[1] * g0n
     converged, it = False, 0
-    B_prev = B0f
+    B = np.broadcast_to(B0f, B0.shape + (F,))
     b_rms = float(np.sqrt((B0**2).sum(0).mean()))
     for it in range(1, max_iter + 1):
-        R = Wl - _per_frame_product(P, B0f)
         # Continuation: the first pass lowers tau from tau_hi to tau_lo; later passes, warm-started
         # from the previous A, stay at tau_lo.
         taus = np.geomspace(tau_hi, tau_lo, svt_steps) if it == 1 else np.full(max(svt_steps // 4, 1), tau_lo)
+        R = R if it == 1 else residuals(P)
         A = _solve_A(A, Rot, s, S, R, wl, taus)
-        B = S.T @ A + B0f  # (3, L, F)
-        s, Rot = fit_to_moments(*bone_moments(Wl, B, wl), c0, usable, R0=Rot, n_iter=1)
+        # the bones B = A S + B0 (3, L, F), the camera fit's moments and how far the bones moved
+        B_prev, B, moments, moved2 = B, np.empty(B.shape), [], 0.0
+        for b in blocks:
+            Bb = np.matmul(S.T, A[..., b], out=B[..., b])
+            Bb += B0f
+            moments.append(bone_moments(Wl[..., b], Bb, wl[:, b]))
+            moved2 += float(((Bb - B_prev[..., b]) ** 2).sum())
+        s, Rot = fit_to_moments(*join_blocks(moments), c0, usable, R0=Rot, n_iter=1)
         P = s * Rot[:2]
         Xt, t = record(B, P)
         r0, r1 = hist["reprojection"][-2], hist["reprojection"][-1]
         # Converged when the reprojection RMS changes by less than tol times the initial pose's
         # (at zero noise the RMS itself tends to 0) or the bones move by less than tol times their
         # RMS length (the paper: "only deform the 3D reconstruction less than 1 mm").
-        moved = float(np.sqrt(((B - B_prev) ** 2).sum(0).mean()))
-        B_prev = B
+        moved = float(np.sqrt(moved2 / (F * B.shape[1])))
         if it >= 2 and (abs(r0 - r1) <= tol * max(hist["reprojection"][0], 1e-12) or moved <= tol * b_rms):
             converged = True
             break

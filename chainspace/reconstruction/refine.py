@@ -60,13 +60,11 @@ from typing import Any
 import numpy as np
 from scipy.linalg import solveh_banded
 
+from ..blocks import frame_blocks
+
 __all__ = ["refine_bones", "RefineResult", "objective_terms"]
 
 
-# Frames per block of the objective's per-frame arithmetic: a block's temporaries (a few dozen
-# (block, bones) arrays) stay in the processor's cache, where whole sequences of 100,000 frames did not
-# (the objective alone: 3.5-8 microseconds a frame on 100,000 frames, 3.9 on 10,000; 1.9 in blocks).
-FRAME_BLOCK = 2048
 # Unknowns per banded solve of the Gauss-Newton step (the bones one after the other; one bone a solve
 # from 43,691 frames): the banded matrix, 56 bytes an unknown, stays small enough to be reused
 # between solves instead of being mapped (and page-faulted) afresh.
@@ -127,13 +125,13 @@ class _Problem:
 
     def prior_coords(self, x: np.ndarray, bones: Any = None, frames: slice | None = None) -> np.ndarray:
         """:meth:`prior` coordinates first, (3, F, n); only the rows ``frames`` of x and of the result
-        (default: all, computed :data:`FRAME_BLOCK` frames at a time)."""
+        (default: all, computed a block of frames at a time, :func:`chainspace.blocks.frame_blocks`)."""
         idx = np.arange(self.Wb.shape[1]) if bones is None else np.asarray(bones)
         if frames is None:
             F = len(x)
             out = np.empty((3, F, len(idx)))
-            for a in range(0, F, FRAME_BLOCK):
-                out[:, a:a + FRAME_BLOCK] = self.prior_coords(x, idx, slice(a, a + FRAME_BLOCK))
+            for fr in frame_blocks(F):
+                out[:, fr] = self.prior_coords(x, idx, fr)
             return out
         has, q, u, y, yxu, uy = self._constants(idx, frames)
         if not len(has):
@@ -234,8 +232,8 @@ def objective_terms(pb: _Problem, x: np.ndarray, l: np.ndarray, bones: Any = Non
     idx = np.arange(x.shape[1]) if bones is None else np.asarray(bones)
     F = x.shape[0]
     data, length, smooth, prior = (np.zeros(len(idx)) for _ in range(4))
-    for a in range(0, F, FRAME_BLOCK):
-        b = min(a + FRAME_BLOCK, F)
+    for fr in frame_blocks(F):
+        a, b = fr.start, fr.stop
         # the block's frames and the two after them, which its accelerations reach
         xe = _coords(np.take(x[a:min(b + 2, F)], idx, axis=1))  # (3, frames, n): sums over contiguous rows
         xc = xe[:, :b - a]
@@ -429,8 +427,7 @@ def _gauss_newton(pb: _Problem, x: np.ndarray, l: np.ndarray) -> np.ndarray:
     # temporaries would leave the cache, and at 100,000 frames cost a page fault every 4 kB.
     xc = _coords(x)
     ut, rhs, hs2 = np.empty((L, F, 3)), np.empty((L, F, 3)), np.empty((L, F))
-    for f0 in range(0, F, FRAME_BLOCK):
-        fr = slice(f0, min(f0 + FRAME_BLOCK, F))
+    for fr in frame_blocks(F):
         xb, s = xc[:, fr], pb.s[fr, None]
         res = s * xb[:2] - pb.Wb_c[:, fr]  # (2, frames, L)
         r = np.sqrt(res[0] ** 2 + res[1] ** 2)
