@@ -265,7 +265,9 @@ class KinematicChain:
 
     def bone_lengths(self, poses: Any) -> np.ndarray:
         """Lengths of every link (bones, then rigid links) of poses (..., J, 3): (..., L)."""
-        return np.linalg.norm(self.bone_vectors(poses), axis=-1)
+        V = self.bone_vectors(poses)
+        # the coordinates summed one by one: np.linalg.norm over the short last axis is 5 times slower
+        return np.sqrt(V[..., 0] ** 2 + V[..., 1] ** 2 + V[..., 2] ** 2)
 
     def poses_from_bones(self, bones: Any) -> np.ndarray:
         """Poses (..., J, 3) with the root at the origin from tree bone vectors (..., n_bones, 3).

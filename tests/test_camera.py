@@ -78,6 +78,19 @@ def test_cameras_from_frames_last_moments_equal_fit_cameras():
         np.testing.assert_allclose(R[7], R[6])
 
 
+def test_bones_shared_by_every_frame_give_the_per_frame_answer():
+    """One (L, 3) set of bones for every frame (moments as matrix products over the bones) fits the
+    cameras that the same bones repeated per frame (F, L, 3) fit, with weights and a missing bone."""
+    B, P, W = _case(noise=3.0, seed=6)
+    Bs = B[0]
+    W = np.einsum("fij,lj->fli", P, Bs) + np.random.default_rng(6).normal(size=W.shape)
+    w = np.random.default_rng(7).uniform(0.2, 1.0, W.shape[:2])
+    W[3, 2] = np.nan
+    got = fit_cameras(W, Bs, w)
+    np.testing.assert_allclose(got, fit_cameras(W, np.repeat(Bs[None], len(W), 0), w), rtol=1e-7, atol=1e-7 * np.abs(P).max())
+    assert np.abs(got - P).max() < 0.05 * np.abs(P).max()
+
+
 def test_project_and_shape_errors():
     rng = np.random.default_rng(0)
     X = rng.normal(size=(3, 4, 3))
@@ -99,7 +112,7 @@ def test_closed_form_orthonormal_rows_are_the_svd_polar_factor():
     M[0] = np.outer([1.0, 2.0], [0.0, 3.0, 4.0])
     M[1] = 0.0
     U, _, Vt = np.linalg.svd(M, full_matrices=False)
-    Q = _orthonormal_rows(M)
+    Q = np.moveaxis(_orthonormal_rows(np.moveaxis(M, 0, -1)), -1, 0)  # entries first
     np.testing.assert_allclose(Q[2:], (U @ Vt)[2:], atol=1e-10)
     np.testing.assert_allclose(Q @ np.swapaxes(Q, 1, 2), np.broadcast_to(np.eye(2), (200, 2, 2)), atol=1e-10)
 

@@ -117,6 +117,7 @@ def fit_cameras(
         raise TrackError(f"W_bones has shape {W.shape}: expected (F, 2, L) or (F, L, 2)")
     F, L = W.shape[:2]
     Bx = _rows(Bx, 3, L, "B")
+    shared = Bx if Bx.ndim == 2 and np.isfinite(Bx).all() else None
     Bx = np.broadcast_to(Bx, (F, L, 3)) if Bx.ndim == 2 else Bx
     if Bx.shape != (F, L, 3):
         raise TrackError(f"B has shape {np.shape(B)}, which does not match W_bones {np.shape(W_bones)}")
@@ -126,11 +127,11 @@ def fit_cameras(
     if not ok.all():
         w = np.where(ok, w, 0.0)
         W = np.where(ok[..., None], W, 0.0)
-        Bx = np.where(ok[..., None], Bx, 0.0)
+        Bx = Bx if shared is not None else np.where(ok[..., None], Bx, 0.0)
 
     # Every quantity below depends on the data only through these per-frame moments, so the
     # iterations cost O(F), not O(F L): G = B^T w B (3x3), H = W^T w B (2x3), c0 = sum w |W|^2.
-    G, H, c0 = _data_moments(W, Bx, w)
+    G, H, c0 = _data_moments(W, Bx, w) if shared is None else _shared_moments(W, shared, w)
     R0e = None if R0 is None else np.moveaxis(np.broadcast_to(np.asarray(R0, float), (F, 3, 3)), 0, -1).copy()
     s, R = fit_to_moments(G, H, c0, ok.sum(-1) >= 2, R0=R0e, n_iter=n_iter, fill=fill)
     R = np.ascontiguousarray(np.moveaxis(R, -1, 0))
@@ -165,14 +166,7 @@ def fit_to_moments(G: np.ndarray, H: np.ndarray, c0: np.ndarray, usable: np.ndar
 
 def _fit_block(G, H, c0, R0, n_iter):
     """:func:`fit_to_moments` on one block of frames, before the unusable frames are filled."""
-    if R0 is None:
-        # Closed form: affine M = H G^-1, projected onto s * (orthonormal rows) by one SVD.
-        Gs = np.moveaxis(G, -1, 0)
-        ridge = 1e-9 * np.trace(Gs, axis1=-2, axis2=-1)[:, None, None] + 1e-300
-        M = np.moveaxis(H, -1, 0) @ np.linalg.inv(Gs + ridge * np.eye(3))
-        R = np.ascontiguousarray(np.moveaxis(complete_rotation(_orthonormal_rows(M)), 0, -1))
-    else:
-        R = np.asarray(R0, dtype=float)
+    R = _closed_form_rotations(G, H) if R0 is None else np.asarray(R0, dtype=float)
     s, R, cost = _scale_and_cost(G, H, c0, R)
     lam = np.full(len(c0), 1e-6)
     for _ in range(n_iter):
@@ -194,23 +188,36 @@ def bone_moments(W: np.ndarray, B: np.ndarray, w: np.ndarray) -> tuple[np.ndarra
 
 
 def _orthonormal_rows(M: np.ndarray) -> np.ndarray:
-    """The nearest (F, 2, 3) matrices with orthonormal rows, U V^T of the SVD M = U S V^T, in closed
-    form: (M M^T)^(-1/2) M, where a 2 x 2 A = M M^T with r = sqrt(det A) has the square root
-    (A + r I) / sqrt(tr A + 2 r) (a batched SVD of many 2 x 3 matrices is slow); the SVD where M
-    is (nearly) of rank one."""
-    A = M @ np.swapaxes(M, -1, -2)
-    det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
-    tr = A[:, 0, 0] + A[:, 1, 1]
+    """The nearest matrices with orthonormal rows to M (2, 3, F), entries first: U V^T of the SVD
+    M = U S V^T, in closed form: (M M^T)^(-1/2) M, where a 2 x 2 A = M M^T with r = sqrt(det A) has
+    the square root (A + r I) / sqrt(tr A + 2 r) (a batched SVD of many 2 x 3 matrices is slow); the
+    SVD where M is (nearly) of rank one."""
+    a00, a01, a11 = (M[0] * M[0]).sum(0), (M[0] * M[1]).sum(0), (M[1] * M[1]).sum(0)
+    det, tr = a00 * a11 - a01 * a01, a00 + a11
     ok = det > 1e-12 * tr**2
     r = np.sqrt(np.where(ok, det, 1.0))
     # (A + r I)^-1 = adj(A + r I) / det(A + r I), det(A + r I) = r (tr + 2 r)
-    adj = np.stack([np.stack([A[:, 1, 1] + r, -A[:, 0, 1]], -1), np.stack([-A[:, 1, 0], A[:, 0, 0] + r], -1)], -2)
     k = 1.0 / (r * np.sqrt(tr + 2.0 * r))
-    Q = (adj * k[:, None, None]) @ M
+    Q = np.stack([((a11 + r) * M[0] - a01 * M[1]) * k, ((a00 + r) * M[1] - a01 * M[0]) * k])
     if not ok.all():
-        U, _, Vt = np.linalg.svd(M[~ok], full_matrices=False)
-        Q[~ok] = U @ Vt
+        U, _, Vt = np.linalg.svd(np.moveaxis(M[..., ~ok], -1, 0), full_matrices=False)
+        Q[..., ~ok] = np.moveaxis(U @ Vt, 0, -1)
     return Q
+
+
+def _closed_form_rotations(G: np.ndarray, H: np.ndarray) -> np.ndarray:
+    """Rotations (3, 3, F) from the affine camera M = H G^-1 projected onto orthonormal rows, entries
+    first; G^-1 of the symmetric G (ridged by 1e-9 of its trace) from its cofactors."""
+    ridge = 1e-9 * (G[0, 0] + G[1, 1] + G[2, 2]) + 1e-300
+    g00, g11, g22 = G[0, 0] + ridge, G[1, 1] + ridge, G[2, 2] + ridge
+    g01, g02, g12 = G[0, 1], G[0, 2], G[1, 2]
+    c00, c01, c02 = g11 * g22 - g12 * g12, g02 * g12 - g01 * g22, g01 * g12 - g02 * g11
+    c11, c12, c22 = g00 * g22 - g02 * g02, g01 * g02 - g00 * g12, g00 * g11 - g01 * g01
+    det = g00 * c00 + g01 * c01 + g02 * c02
+    det = np.where(det > 0, det, np.inf)  # a frame without data (det underflows): M = 0, the SVD's start
+    inv = np.stack([np.stack([c00, c01, c02]), np.stack([c01, c11, c12]), np.stack([c02, c12, c22])]) / det
+    Q = _orthonormal_rows(_mm(H, inv))
+    return np.concatenate([Q, np.cross(Q[0], Q[1], axis=0)[None]])
 
 
 def _data_moments(W: np.ndarray, B: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -221,6 +228,16 @@ def _data_moments(W: np.ndarray, B: np.ndarray, w: np.ndarray) -> tuple[np.ndarr
     H = np.swapaxes(W, -1, -2) @ wB
     c0 = np.einsum("fl,fli,fli->f", w, W, W)
     return np.ascontiguousarray(G.transpose(1, 2, 0)), np.ascontiguousarray(H.transpose(1, 2, 0)), c0
+
+
+def _shared_moments(W: np.ndarray, B: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_data_moments` for one set of 3D bones B (L, 3) shared by every frame: G and H are then
+    matrix products over the bones, (F, L) x (L, 9) and (2F, L) x (L, 3)."""
+    F, L = w.shape
+    G = w @ (B[:, :, None] * B[:, None, :]).reshape(L, 9)
+    H = (np.swapaxes(W, 1, 2) * w[:, None, :]).reshape(2 * F, L) @ B
+    c0 = (w * (W[..., 0] ** 2 + W[..., 1] ** 2)).sum(-1)
+    return (np.ascontiguousarray(G.T.reshape(3, 3, F)), np.ascontiguousarray(H.reshape(F, 2, 3).transpose(1, 2, 0)), c0)
 
 
 def _mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
