@@ -223,10 +223,6 @@ def _huber(r: np.ndarray, delta: float) -> np.ndarray:
     return np.where(r <= delta, r * r, 2.0 * delta * r - delta * delta)
 
 
-def _accel(x: np.ndarray) -> np.ndarray:
-    return x[2:] - 2.0 * x[1:-1] + x[:-2] if len(x) > 2 else np.zeros((0,) + x.shape[1:])
-
-
 def objective_terms(pb: _Problem, x: np.ndarray, l: np.ndarray, bones: Any = None) -> dict[str, np.ndarray]:
     """Each term of E per bone, (L,) arrays (image units squared); only ``bones`` if given."""
     idx = np.arange(x.shape[1]) if bones is None else np.asarray(bones)
