@@ -122,10 +122,10 @@ def test_steps_in_camera_axes_equal_the_paper_step(uniform):
 
 
 def test_point_masks_equal_numpys_per_coordinate_forms():
-    """where_seen and seen_points (each point's two coordinates handled as one complex number) equal
-    np.where(seen[..., None], points, fill) and np.isfinite(points).all(-1), on contiguous and
-    strided arrays, with one coordinate missing, inf, and a NaN fill."""
-    from chainspace.reconstruction.kcs import seen_points, where_seen
+    """where_seen, seen_points and complex_points (each point's two coordinates handled as one complex
+    number) equal np.where(seen[..., None], points, fill), np.isfinite(points).all(-1) and x + iy where
+    seen, on contiguous and strided arrays, with one coordinate missing, inf, and a NaN fill."""
+    from chainspace.reconstruction.kcs import complex_points, seen_points, where_seen
 
     rng = np.random.default_rng(0)
     pts = rng.normal(size=(6, 5, 2)) * 1e3
@@ -138,3 +138,4 @@ def test_point_masks_equal_numpys_per_coordinate_forms():
         assert not seen.all() and seen.any()
         for fill in (0.0, np.nan):
             np.testing.assert_array_equal(where_seen(p, seen, fill), np.where(seen[..., None], p, fill))
+        np.testing.assert_array_equal(complex_points(p, seen), np.where(seen, p[..., 0] + 1j * p[..., 1], 0))

@@ -30,7 +30,7 @@ import numpy as np
 from ..cameras.weak import fit_cameras, smooth_scales
 from ..chain import KinematicChain
 from ..errors import CameraError, ChainspaceError, ConvergenceWarning, TrackError, is_real
-from .kcs import (bone_observations, fit_translations, kcs_factorize, reprojection_rms,
+from .kcs import (bone_observations, complex_points, fit_translations, kcs_factorize, reprojection_rms,
                   reprojection_with_translations, seen_points, where_seen)
 from ..metrics import error_3d
 from .refine import refine_bones
@@ -455,7 +455,7 @@ def _run(W_in, c, given, X0, T, chain, method, max_iter, tol, progress, n_basis,
     centred and divided by their typical spread, so any unit from 1e-6 to 1e12 behaves the same);
     cameras, translations and image-unit histories are mapped back at the end."""
     seen = c > 0
-    z = where_seen(W_in, seen).view(np.complex128).sum() / seen.sum()  # a point as x + iy: fast sums
+    z = complex_points(W_in, seen).sum() / seen.sum()
     center = np.array([z.real, z.imag])
     unit = _spread(W_in, seen)
     W = (W_in - center) / unit
@@ -593,7 +593,7 @@ def _real_cameras(P, Q):
 def _spread(W, seen):
     """Typical distance of a frame's visible points from their centroid (median over frames)."""
     n = np.maximum(seen.sum(1), 1)
-    z = where_seen(W, seen).view(np.complex128)[..., 0]  # a point as one complex number: fast sums
+    z = complex_points(W, seen)
     m = z.sum(1) / n
     dz = np.where(seen, z - m[:, None], 0.0)
     d = np.sqrt((dz.real**2 + dz.imag**2).sum(1) / n)
