@@ -76,8 +76,9 @@ def test_svt_matches_a_full_svd():
 
 @pytest.mark.parametrize("missing", [False, True])
 def test_blocks_of_frames_give_the_whole_sequences_kcs(monkeypatch, missing):
-    """The KCS stage's per-frame work runs blocks.FRAMES_LAST_BLOCK frames at a time:
-    blocks of 7 frames give what one block of all frames gives (sums in another order: rounding)."""
+    """The KCS stage's per-frame work and its FISTA steps' sweeps run blocks.FRAMES_LAST_BLOCK frames
+    at a time: blocks of 7 frames give what one block of all frames gives (sums in another order:
+    rounding)."""
     import chainspace.blocks as blocks
 
     chain, X, W = _case(noise=1.0, F=40)
