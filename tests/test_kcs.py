@@ -139,4 +139,5 @@ def test_point_masks_equal_numpys_per_coordinate_forms():
         assert not seen.all() and seen.any()
         for fill in (0.0, np.nan):
             np.testing.assert_array_equal(where_seen(p, seen, fill), np.where(seen[..., None], p, fill))
-        np.testing.assert_array_equal(complex_points(p, seen), np.where(seen, p[..., 0] + 1j * p[..., 1], 0))
+        want = np.where(seen, p[..., 0], 0.0) + 1j * np.where(seen, p[..., 1], 0.0)
+        np.testing.assert_array_equal(complex_points(p, seen), want)
