@@ -62,13 +62,15 @@ def test_svt_matches_a_full_svd():
     """Singular value thresholding from the Gram matrix, through all directions or through the few
     kept ones (low thresholded rank), equals U max(sigma - tau, 0) V^T from a full SVD; the nuclear
     norm of the result is the thresholded one."""
-    from chainspace.reconstruction.kcs import _shrinkage, _svt
+    from chainspace.reconstruction.kcs import _gram, _shrinkage, _threshold
 
     A = np.random.default_rng(5).normal(size=(50, 3, 15)) * np.logspace(0, -3, 15)
     M = A.reshape(-1, 15)
     U, sig, Vt = np.linalg.svd(M, full_matrices=False)
     for tau in (0.0, 0.5 * sig[3], 0.5 * sig[12], 2.0 * sig[0]):  # all kept, a few (two thin products), most, none
-        out = _svt(np.ascontiguousarray(A.transpose(1, 2, 0)), tau, out=np.empty((3, 15, 50)))  # frames last
+        At = np.ascontiguousarray(A.transpose(1, 2, 0))  # frames last
+        Vk, Vg, _ = _shrinkage(_gram(At), tau)
+        out = _threshold(At, Vk, Vg, out=np.empty((3, 15, 50)))
         shrunk = np.maximum(sig - tau, 0.0)
         np.testing.assert_allclose(out.transpose(2, 0, 1).reshape(-1, 15), (U * shrunk) @ Vt, atol=1e-10 * sig[0])
         assert _shrinkage(M.T @ M, tau)[2] == pytest.approx(shrunk.sum())

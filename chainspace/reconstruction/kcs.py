@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from ..blocks import frame_blocks, join_blocks
-from ..cameras.weak import bone_moments, fit_cameras, fit_to_moments
+from ..cameras.weak import bone_moments, fit_cameras, fit_to_moments, per_frame_product
 
 __all__ = ["kcs_factorize", "KCSResult", "bone_observations", "fit_translations", "reprojection_rms",
            "reprojection_with_translations", "where_seen", "seen_points", "complex_points"]
@@ -123,19 +123,12 @@ def reprojection_with_translations(Wt: np.ndarray, weights: np.ndarray, Xt: np.n
     t, r2 = np.empty((Wt.shape[-1], 2)), 0.0
     for b in frame_blocks(Wt.shape[-1], frames_last=True):
         w = weights[:, b]
-        d = Wt[..., b] - _per_frame_product(P[..., b], Xt[..., b])
+        d = Wt[..., b] - per_frame_product(P[..., b], Xt[..., b])
         tb = np.einsum("cjf,jf->cf", d, w) / np.maximum(w.sum(0), 1e-300)
         d -= tb[:, None]
         r2 += float(np.einsum("cjf,cjf,jf->", d, d, w))  # weighted sums as einsums: 6 times faster
         t[b] = tb.T
     return float(np.sqrt(r2 / max(weights.sum(), 1e-300))), t
-
-
-def _per_frame_product(M: np.ndarray, X: np.ndarray, transpose: bool = False, out: np.ndarray | None = None
-                       ) -> np.ndarray:
-    """Per-frame products M_k X_k (or M_k^T X_k) of small matrices M (p, q, F) and arrays X (q, ...,
-    F), both frames last: out[i] = sum_j M[i, j] X[j], sums of q products of F-vectors."""
-    return np.einsum("jif,j...f->i...f" if transpose else "ijf,j...f->i...f", M, X, out=out)
 
 
 def _pose_basis(tracks, weights, P, X0, n_basis):
@@ -172,17 +165,11 @@ def _gram(A: np.ndarray) -> np.ndarray:
     return A[0] @ A[0].T + A[1] @ A[1].T + A[2] @ A[2].T
 
 
-def _svt(A: np.ndarray, tau: float, out: np.ndarray, scratch: np.ndarray | None = None) -> np.ndarray:
-    """Singular value thresholding of the stacked (3F x 3K) matrix given frames last as A (3, 3K, F)
-    (A[i, :, k] is row i of frame k's A_k), into ``out`` (:func:`_threshold`)."""
-    Vk, Vg, _ = _shrinkage(_gram(A), tau)
-    return _threshold(A, Vk, Vg, out, scratch)
-
-
 def _threshold(A: np.ndarray, Vk: np.ndarray, Vg: np.ndarray, out: np.ndarray, scratch: np.ndarray | None = None
                ) -> np.ndarray:
-    """The thresholded rows V_r G V_r^T A[i] of A (3, 3K, F) (:func:`_shrinkage`'s V_r and V_r G), into
-    ``out``: one product with a 3K x 3K matrix, or two thin ones through the r kept directions when
+    """Singular value thresholding of the stacked (3F x 3K) matrix given frames last as A (3, 3K, F)
+    (A[i, :, k] is row i of frame k's A_k), with :func:`_shrinkage`'s V_r and V_r G (of the Gram
+    matrix :func:`_gram`): the thresholded rows V_r G V_r^T A[i], into ``out``: one product with a 3K x 3K matrix, or two thin ones through the r kept directions when
     r < 3K / 2 (the thresholded rank is often low), the first into ``scratch`` (shaped like A) if given."""
     r = Vk.shape[1]
     if 2 * r < A.shape[1]:
@@ -218,7 +205,7 @@ def _solve_A(A, Rot, s, S, R, wb, taus, work=None):
     lam, U = np.linalg.eigh(S @ S.T) if uniform else (None, np.eye(m))
     Y, A_prev, spare, turned = np.empty((4,) + A.shape) if work is None else work
     for b in blocks:
-        np.matmul(U.T, _per_frame_product(Rot[..., b], A[..., b], out=turned[..., b]), out=A_prev[..., b])
+        np.matmul(U.T, per_frame_product(Rot[..., b], A[..., b], out=turned[..., b]), out=A_prev[..., b])
     if uniform:
         fac = 1.0 - (step * wk * s**2) * lam[:, None]  # (3K, F)
         US = U.T @ S
@@ -269,7 +256,7 @@ def _solve_A(A, Rot, s, S, R, wb, taus, work=None):
                 gram += _gram(Yb)
         spare, A_prev, t = A_prev, spare, t_new
     for b in blocks:
-        _per_frame_product(Rot[..., b], np.matmul(U, A_prev[..., b], out=turned[..., b]), transpose=True,
+        per_frame_product(Rot[..., b], np.matmul(U, A_prev[..., b], out=turned[..., b]), transpose=True,
                            out=A[..., b])
     return A
 
@@ -338,13 +325,13 @@ def kcs_factorize(
     blocks = frame_blocks(F, frames_last=True)
 
     def residuals(P):  # R = W C - P B0 (2, L, F)
-        return join_blocks([Wl[..., b] - _per_frame_product(P[..., b], B0f) for b in blocks])
+        return join_blocks([Wl[..., b] - per_frame_product(P[..., b], B0f) for b in blocks])
 
     Xt, t = record(np.broadcast_to(B0f, B0.shape + (F,)), P)
     # The threshold scale: spectral norm of the gradient at A = 0 (where every singular value would
     # be thresholded away if tau were larger).
     R = residuals(P)
-    g0 = _per_frame_product(P, S @ (R * wl), transpose=True)  # (3, 3K, F)
+    g0 = per_frame_product(P, S @ (R * wl), transpose=True)  # (3, 3K, F)
     g0n = float(np.sqrt(max(np.linalg.eigvalsh(sum(g @ g.T for g in g0))[-1], 0)))
     tau_hi, tau_lo = tau_range[0] * g0n, tau_range[1] * g0n
     converged, it = False, 0
