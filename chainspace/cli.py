@@ -91,8 +91,8 @@ _SHELL_ADVICE = (
     ("pass urdf=PATH", "give --urdf"),
     ("pass format= one of", "give --format, one of"),
     ("pass init_pose (J, 3)", "give --init-pose (J, 3)"),
-    ("pass intrinsics= (a calibration) or image_size=(width, height)",
-     "give --intrinsics FILE (a calibration) or --image-size W H"),
+    ("pass intrinsics= (a calibration), image_size=(width, height) or perspective=True",
+     "give --intrinsics FILE (a calibration), --image-size W H or --perspective"),
 )
 
 
@@ -281,6 +281,7 @@ def _camera_option(intrinsics: Path | None, fov: float | None,
 
     Called before any work, so that a bad value stops the command at once (exit code 2).
     """
+    size = _image_size(image_size)
     if intrinsics is None and fov is None:
         return None
     from .cameras.pinhole import PinholeCamera, as_camera
@@ -288,12 +289,6 @@ def _camera_option(intrinsics: Path | None, fov: float | None,
 
     if intrinsics is not None and fov is not None:
         raise CameraError("give --intrinsics or --fov, not both")
-    size = None
-    if image_size is not None:
-        w, h = image_size
-        if not (is_real(w) and is_real(h) and w > 0 and h > 0 and w == int(w) and h == int(h)):
-            raise CameraError(f"--image-size must be two positive whole numbers of pixels, not {w:g} {h:g}")
-        size = (int(w), int(h))
     if fov is not None:
         if not is_real(fov) or not 0.0 < fov < 180.0:
             raise CameraError(f"--fov must be a field of view in degrees between 0 and 180, not {fov:g}")
@@ -303,6 +298,18 @@ def _camera_option(intrinsics: Path | None, fov: float | None,
     if not intrinsics.is_file():
         raise DescriptionNotFoundError(f"{intrinsics}: no such calibration file (--intrinsics)")
     return as_camera(intrinsics, size)
+
+
+def _image_size(image_size: tuple[float, float] | None) -> tuple[int, int] | None:
+    """--image-size W H as whole pixels, or None; a clear error for anything else."""
+    if image_size is None:
+        return None
+    from .errors import CameraError, is_real
+
+    w, h = image_size
+    if not (is_real(w) and is_real(h) and w > 0 and h > 0 and w == int(w) and h == int(h)):
+        raise CameraError(f"--image-size must be two positive whole numbers of pixels, not {w:g} {h:g}")
+    return int(w), int(h)
 
 
 def _intrinsics_kwargs(func: Callable[..., Any], camera: Any, what: str) -> dict[str, Any]:
@@ -419,12 +426,17 @@ def fit(
                                             "viewer).")] = 30.0,
     extra_frame: ExtraFrames = None,
     markers: Markers = None,
+    perspective: Annotated[bool, typer.Option(
+        "--perspective", help="Fit a pinhole camera even without --intrinsics/--fov/--image-size: focal "
+                              "length and principal point estimated from the tracks (slower).")] = False,
     overwrite: Overwrite = False,
 ) -> None:
     """Fit the robot's joint angles (Pinocchio) to a reconstruction or to 2D tracks.
 
     Writes joint_angles.npz, joint_angles.csv (frame, one column per joint, radians) and
-    joint_angles.json into --out. Exit code 1 if some frames did not converge.
+    joint_angles.json into --out. Without a camera (--intrinsics, --fov) the fit assumes weak
+    perspective; --image-size alone has the focal length estimated, --perspective the focal length
+    and the principal point. Exit code 1 if some frames did not converge.
     """
     from .io.descriptions import load_chain
     from .robot.fit import fit_joint_angles
@@ -435,6 +447,10 @@ def fit(
     pinhole = _camera_option(intrinsics, fov, image_size)  # --camera is the static/per-frame choice
     _check_outputs([out / f"joint_angles.{x}" for x in ("npz", "csv", "json")] + [html], overwrite)
     fit_kw = _intrinsics_kwargs(fit_joint_angles, pinhole, "fit")
+    if pinhole is None and image_size is not None:  # the image's size without its focal: the focal is fitted
+        fit_kw["image_size"] = _image_size(image_size)
+    if perspective:
+        fit_kw["perspective"] = True
     urdf_path = None if urdf is None else _urdf_path(urdf)
     fit_chain = None
     if source.suffix.lower() == ".npz" and _is_result(source):

@@ -45,5 +45,6 @@ def test_close_footage_fitted_without_its_camera_is_flagged_not_silent():
 
 def test_the_hint_in_the_command_lines_words():
     shell = _for_the_shell("poor fit: joint_a1: ...; " + PERSPECTIVE_HINT)
-    assert "--intrinsics FILE" in shell and "--image-size W H" in shell
+    assert "--intrinsics FILE" in shell and "--image-size W H" in shell and "--perspective" in shell
+    assert "=" not in shell.split("poor fit: ")[1].replace("joint_a1: ...", "")  # no Python advice left
     assert "intrinsics=" not in shell and "image_size=" not in shell

@@ -100,6 +100,63 @@ def test_focal_recovered_from_image_size(arm, arm_trial):
     assert _worst_deg(fit, tr) < 0.05
 
 
+@pytest.fixture(scope="module")
+def off_centre(arm, arm_trial):
+    """arm_trial's tracks moved 300 px right and 150 px down (a robot filmed off the image centre), fitted
+    as a pinhole camera of unknown focal length and principal point."""
+    shift = np.array([300.0, 150.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_joint_angles(_rough_reconstruction(arm_trial), chain=arm, tracks=arm_trial.tracks + shift,
+                               perspective=True)
+    return fit, shift
+
+
+def test_focal_and_principal_point_recovered_without_image_size(off_centre, arm_trial):
+    fit, shift = off_centre
+    tr = arm_trial
+    assert "principal point estimated" in fit.message and "focal length estimated" in fit.message, fit.message
+    K = fit.intrinsics.K
+    # noise-free: the true camera, its principal point moved with the tracks (not left at their centre)
+    assert abs(fit.focal_px - 1450.0) < 1.45, fit.message
+    assert np.allclose(K[:2, 2], tr.intrinsics.K[:2, 2] + shift, atol=1.0), K
+    assert fit.intrinsics.image_size is None
+    assert _worst_deg(fit, tr) < 0.05
+
+
+def test_a_fitted_principal_point_is_saved(off_centre, tmp_path):
+    fit = off_centre[0]
+    paths = save_results(fit, tmp_path / "fit")
+    back = load_results([p for p in paths if str(p).endswith(".npz")][0])
+    assert np.allclose(back.intrinsics.K, fit.intrinsics.K) and back.intrinsics.image_size is None
+    assert np.allclose(back.reprojected(), fit.reprojected(), equal_nan=True)
+
+
+def test_a_guessed_principal_point_would_be_wrong_here(arm, arm_trial, off_centre):
+    # the same tracks with the principal point taken at the image centre (an image_size guess): the
+    # camera is then wrong and the joints further off than with it fitted
+    fit, shift = off_centre
+    tr = arm_trial
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        guessed = fit_joint_angles(_rough_reconstruction(tr), chain=arm, tracks=tr.tracks + shift,
+                                   image_size=tr.image_size)
+    assert abs(guessed.focal_px - 1450.0) > 10 * abs(fit.focal_px - 1450.0)
+    assert _worst_deg(guessed, tr) > 10 * _worst_deg(fit, tr)
+
+
+def test_perspective_argument_is_checked(arm, arm_trial):
+    from chainspace.errors import DescriptionError
+
+    X = _rough_reconstruction(arm_trial)
+    with pytest.raises(DescriptionError, match="perspective must be"):
+        fit_joint_angles(X, chain=arm, tracks=arm_trial.tracks, perspective="yes")
+    with pytest.raises(DescriptionError, match="perspective=False"):
+        fit_joint_angles(X, chain=arm, tracks=arm_trial.tracks, perspective=False, image_size=(1920, 1080))
+    with pytest.raises(DescriptionError, match="needs the 2D tracks"):
+        fit_joint_angles(X, chain=arm, perspective=True)
+
+
 def test_ur10_one_pixel_noise(example_urdf):
     chain = chainspace.from_urdf(example_urdf("ur10"))
     tr = synthesize(chain, n_frames=30, noise_px=1.0, seed=1, camera="pinhole", focal_px=1450.0, distance_reaches=2.0)

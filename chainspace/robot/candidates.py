@@ -4,6 +4,8 @@ by dynamic programming, branches after long gaps, views turned about the first j
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from .kinematics import RobotKinematics, _gauge_q, _held_q, _random_q, _seeded, _wrapped
@@ -316,8 +318,6 @@ def _pinhole_twin(robot: RobotKinematics, q: np.ndarray, view, free: np.ndarray)
     plus the motion prior, px^2; noise variance about 1.1) 169.0 for the true motion and 169.5 for its
     mirror image, a tie; from the turned starts alone the fit reached only the mirror's basin, 26
     degrees off, and reported it as settled."""
-    from .views import _PinholeView
-
     qm = _mirror_pose(robot, q, free)
     if qm is None:
         return None
@@ -328,7 +328,7 @@ def _pinhole_twin(robot: RobotKinematics, q: np.ndarray, view, free: np.ndarray)
     else:
         flip = np.diag([1.0, 1.0, -1.0])
         R2, t2 = flip @ R @ SYMMETRY_MIRROR, flip @ t + [0.0, 0.0, 2 * float(np.median(depth))]
-    return qm, _PinholeView(R2[None], t2[None], view.f, view.c, view.cam_of, view.fit_focal)
+    return qm, replace(view, R=R2[None], t=t2[None])
 
 
 def _turned_twins(robot: RobotKinematics, q: np.ndarray, view) -> list:
@@ -344,7 +344,7 @@ def _turned_twins(robot: RobotKinematics, q: np.ndarray, view) -> list:
     turn off on joint1 at objective 142.8, the true motion's mirror image 150.1 (noise variance about
     1.1), a tie no start reached, reported as settled."""
     from .starts import _base_turns
-    from .views import _PinholeView, similarity_align
+    from .views import similarity_align
 
     pos = robot.positions(q)
     out = []
@@ -357,7 +357,7 @@ def _turned_twins(robot: RobotKinematics, q: np.ndarray, view) -> list:
                                    scale=False)  # the turn, x_t = A x + b
         R = view.R[0] @ A.T
         t = view.t[0] - R @ b
-        v = _PinholeView(R[None], t[None], view.f, view.c, view.cam_of, view.fit_focal)
+        v = replace(view, R=R[None], t=t[None])
         if np.abs(v.apply(pt)[0] - view.apply(pos)[0]).max() < 1e-6 * max(view.f, 1.0):
             continue  # every tracked point where it was: the same motion up to the gauge
         out.append((qt, v))

@@ -131,6 +131,14 @@ does not beat weak perspective's squared residuals by 25 noise variances (a like
 the tracks carry no measurable perspective (a far camera, a long lens): the weak-perspective fit is
 reported, ``message`` says so, and ``focal_px``/``focal_std_px`` hold what was estimated.
 
+With ``perspective=True`` and neither intrinsics nor image size, the principal point is fitted as
+well (two more camera parameters, started at the centre of the tracks' extent; the focal starts are
+those of an image twice as wide as that extent): the fit then does not depend on where in the image
+the robot stands (shifting every track shifts the principal point alike). Through ``synthesize``'s
+phone and industrial cameras (60 frames, 1 px; ``benchmarks/bench_no_camera.py --image-size
+unknown``) the joints came out as a fit given the image size does, where a principal point guessed
+470 px off (a robot filmed off-centre) left joints 2-8 degrees off unflagged.
+
 The perspective fit says how sure it is as the weak one does (``q_std``, ``noise_px``,
 ``alternatives``, ``ambiguous``: :func:`chainspace.robot.uncertainty.assess_fit`), with the static
 pinhole camera (rotation, translation and, when estimated, log f) eliminated from the covariance by
@@ -193,8 +201,9 @@ __all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"
 
 
 PERSPECTIVE_HINT = ("a camera within a few robot reaches sees the robot in perspective, which this fit (given no "
-                    "intrinsics or image size) does not model: pass intrinsics= (a calibration) or "
-                    "image_size=(width, height) to fit under perspective")
+                    "intrinsics or image size) does not model: pass intrinsics= (a calibration), "
+                    "image_size=(width, height) or perspective=True (focal length and principal point "
+                    "fitted) to fit under perspective")
 
 
 def _positive(x: Any) -> bool:
@@ -274,6 +283,7 @@ def fit_joint_angles(
     speed_decay_s: float | None = None,
     intrinsics: Any = None,
     image_size: tuple[float, float] | None = None,
+    perspective: bool | None = None,
     search_ties: bool = False,
     _starts: list | None = None,
     _assess: bool = True,
@@ -332,7 +342,14 @@ def fit_joint_angles(
         (width, height) px of the images, without ``intrinsics``: the focal length is estimated too
         (principal point at the image centre) and reported with its standard deviation; where the tracks
         carry no measurable perspective the weak-perspective fit is kept and ``message`` says so.
-        Neither given: weak perspective only.
+        Neither given: weak perspective only, unless ``perspective=True``.
+    perspective
+        None (default): a pinhole camera where ``intrinsics`` or ``image_size`` is given, else weak
+        perspective. True: a pinhole camera in any case; with neither given its focal length and
+        principal point are both fitted (see "Perspective" in the module docstring), and where the
+        tracks carry no measurable perspective the weak-perspective fit is reported, as with
+        ``image_size``. It costs a perspective fit after the weak one (about 1.5-2 times the time).
+        False: weak perspective (``intrinsics`` and ``image_size`` must then be None).
     search_ties
         Also search beyond the fit's own candidates for motions that fit the tracks as well (depth flips
         refitted to the tracks, the best other continuous branch frame by frame, restarts with each joint
@@ -365,7 +382,11 @@ def fit_joint_angles(
         raise DescriptionError(f"loss_scale_px must be a finite number of pixels >= 0 or None, not {loss_scale_px!r}")
     if intrinsics is not None and not hasattr(intrinsics, "K") and hasattr(intrinsics, "image_size"):
         image_size, intrinsics = intrinsics.image_size, None  # a camera that knows its image but not its focal
-    if intrinsics is not None or image_size is not None:
+    if perspective not in (None, True, False):
+        raise DescriptionError(f"perspective must be None, True or False, not {perspective!r}")
+    if perspective is False and (intrinsics is not None or image_size is not None):
+        raise DescriptionError("perspective=False fits weak perspective: give no intrinsics or image_size with it")
+    if intrinsics is not None or image_size is not None or perspective:
         return _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter,
                                 tol, loss_scale_px, mirror, view_from, fps, accel_std, speed_decay_s, intrinsics,
                                 image_size, search_ties)
@@ -684,7 +705,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         cam = intrinsics  # a PinholeCamera, or any camera of the same duck type
     else:
         cam = as_camera(intrinsics)  # a 3x3 matrix or a calibration file
-    if cam is None:
+    if cam is None and image_size is not None:
         try:
             wpx, hpx = (float(v) for v in image_size)
         except (TypeError, ValueError):
@@ -694,7 +715,8 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     t0 = time.perf_counter()
     poses, chain, urdf, tracks, confidence = _inputs(rec_or_poses, urdf, chain, tracks, confidence)
     if tracks is None:
-        raise DescriptionError("intrinsics / image_size need the 2D tracks (tracks=...)")
+        raise DescriptionError("a pinhole camera (intrinsics, image_size or perspective=True) needs the 2D tracks "
+                               "(tracks=...)")
     tracks_u = cam.undistort(tracks) if cam is not None else tracks
     starts: list = []
     stage("robot fit through a pinhole camera: first the weak-perspective fit, its start")
@@ -733,7 +755,8 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         return weak
     view = best["view"]
     if cam is None:
-        cam = PinholeCamera(view.f, view.f, view.c[0], view.c[1], None, *(int(v) for v in image_size))
+        cam = PinholeCamera(view.f, view.f, view.c[0], view.c[1], None,
+                            *((int(v) for v in image_size) if image_size is not None else (None, None)))
     q, pos_base = best["q"], best["pos"]
     residual_px = _rms_per_frame(best["rn"], w2)
     cams, ts2 = view.weak_approximation(pos_base)
@@ -760,6 +783,9 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
                 + ("" if best["settled"] else " (within the noise: a guess)"))
     if focal is not None:
         msg += f"; focal length estimated: {focal:.1f} +- {focal_std:.1f} px"
+    if best.get("centre") is not None:
+        (cx, cy), (sx, sy) = best["centre"], best["centre_std"]
+        msg += f"; principal point estimated: ({cx:.0f} +- {sx:.0f}, {cy:.0f} +- {sy:.0f}) px"
     trust = best["trust"]  # q_std, noise_px, alternatives, ambiguous (chainspace.robot.uncertainty)
     msg += "".join("; " + n for n in trust["notes"])
     converged = np.broadcast_to(np.asarray(best["conv"], bool), (len(q),)).copy()

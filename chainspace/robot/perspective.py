@@ -23,6 +23,8 @@ twins (:func:`_wrist_twins_of`), of which the tie policy keeps the nearest rest
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ..progress import stage, stage_steps
@@ -156,7 +158,7 @@ def _searched_start(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: n
     if found is None:
         return None
     q, pv = found
-    return q, _PinholeView(pv.R, pv.t, pv.f, pv.c, pv.cam_of, view.fit_focal)
+    return q, replace(pv, fit_focal=view.fit_focal, fit_centre=view.fit_centre)
 
 
 def _same_view(robot: RobotKinematics, a: _PinholeView, b: _PinholeView) -> bool:
@@ -203,7 +205,7 @@ def _gauge_turned(robot: RobotKinematics, q: np.ndarray, view: _PinholeView, gau
     _, A, b = similarity_align(np.where(moved[..., None], pos, np.nan), np.where(moved[..., None], pt, np.nan),
                                scale=False)  # the turn, x_t = A x + b (as candidates._turned_twins)
     R = view.R[0] @ A.T
-    return _PinholeView(R[None], (view.t[0] - R @ b)[None], view.f, view.c, view.cam_of, view.fit_focal)
+    return replace(view, R=R[None], t=(view.t[0] - R @ b)[None])
 
 
 def _pinhole_gauge(robot: RobotKinematics, st: dict, w: np.ndarray, unseen: np.ndarray) -> dict:
@@ -228,7 +230,7 @@ def _pinhole_gauge(robot: RobotKinematics, st: dict, w: np.ndarray, unseen: np.n
 
 def _camera_covariance(robot: RobotKinematics, q: np.ndarray, view: _PinholeView, tracks: np.ndarray,
                        w: np.ndarray, free: np.ndarray, delta: float | None, sigma2: float) -> np.ndarray:
-    """Gauss-Newton covariance of the camera parameters (rotation vector, translation[, log f]) with the
+    """Gauss-Newton covariance of the camera parameters (rotation vector, translation[, log f][, c]) with the
     joint angles of every frame eliminated (Schur complement; the motion prior left out, so the
     spread is an upper bound of what the smoothed fit knows), scaled by the residual variance sigma2."""
     pos, jac = robot.jacobians(q)
@@ -258,15 +260,25 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
 
     starts: dicts with q (F, nq), view (weak :class:`_View`), free, free_prior (F, nv), delta (Huber).
     K (3, 3) known intrinsics (tracks already undistorted), or None with ``image_size`` (w, h): the
-    focal length is fitted too (principal point at the image centre). Returns a dict with the winner's
+    focal length is fitted too (principal point at the image centre); neither (``image_size`` None):
+    the principal point is fitted as well, from the centre of the tracks' extent. Returns a dict with the winner's
     q, view, rn, pos, objective, sse, the other starts' objectives, the focal and its standard
     deviation (estimated focal only), and ``measured`` (False: perspective not measurable; see
     ``reason``).
     """
     fit_focal = K is None
-    if fit_focal:
+    fit_centre = fit_focal and image_size is None
+    if fit_centre:  # no image: the principal point starts at the centre of the tracks and is fitted too
+        seen = (w > 0) & np.isfinite(tracks).all(-1)
+        lo, hi = tracks[seen].min(0), tracks[seen].max(0)
+        c = 0.5 * (lo + hi)
+        # focal starts as for an image twice the tracks' extent (a robot over half the frame); from the
+        # extent alone, so that shifting every track changes nothing but the principal point
+        wpx = 2.0 * float((hi - lo).max())
+    elif fit_focal:
         wpx, hpx = (float(v) for v in image_size)
         c = np.array([wpx / 2, hpx / 2])
+    if fit_focal:
         f_inits = [wpx * k for k in (0.5, 0.7, 1.0, 1.4, 2.0, 4.0)]
         aspect = 1.0
     else:
@@ -388,7 +400,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
         step(i)
         st, (_, pv, q, f0, n_iter) = starts[k], screened[k]
         none_free = np.zeros_like(st["free"])
-        pv = _PinholeView(pv.R, pv.t, pv.f, pv.c, pv.cam_of, fit_focal)
+        pv = replace(pv, fit_focal=fit_focal, fit_centre=fit_centre)
         if fit_focal:
             ones = np.ones(pv.n_params, bool)
             for _ in range(3):  # per-frame IK under the camera, alternated with the camera and its focal
@@ -450,6 +462,9 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
         f = best["view"].f
         std = float(f * np.sqrt(max(cov[6, 6], 0.0)))
         best["focal"], best["focal_std"] = float(f), std
+        if fit_centre:
+            best["centre"] = best["view"].c.copy()
+            best["centre_std"] = np.sqrt(np.maximum(np.diag(cov)[7:9], 0.0))
         gain = weak_sse - best["sse"]
         if not np.isfinite(std) or std > FOCAL_REL_STD * f:
             best["measured"] = False

@@ -4,7 +4,7 @@ cameras onto 2D tracks (:class:`_View`), and their closed-form starts.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import numpy as np
 
 
@@ -198,8 +198,9 @@ def _pinhole_pixels_by_point(f: float, y: np.ndarray) -> np.ndarray:
 class _PinholeView:
     """One static pinhole camera: ``u = f (y_x, y_y) / y_z + c`` with ``y = R x + t`` (camera frame,
     metres; x in the robot's base frame). Same interface as :class:`_View` for the solvers; its step
-    (:meth:`moved`) is a rotation vector (R <- exp(w^) R), a translation and, when ``fit_focal``, the
-    change of log f. ``cam_of`` (F,) is all zeros (one camera)."""
+    (:meth:`moved`) is a rotation vector (R <- exp(w^) R), a translation, when ``fit_focal`` the
+    change of log f and when ``fit_centre`` the change of the principal point c (px). ``cam_of`` (F,)
+    is all zeros (one camera)."""
 
     R: np.ndarray  # (1, 3, 3)
     t: np.ndarray  # (1, 3)
@@ -207,6 +208,7 @@ class _PinholeView:
     c: np.ndarray  # (2,) principal point, px
     cam_of: np.ndarray
     fit_focal: bool = False
+    fit_centre: bool = False
 
     per_frame = False
 
@@ -216,7 +218,7 @@ class _PinholeView:
 
     @property
     def n_params(self) -> int:
-        return 7 if self.fit_focal else 6
+        return 6 + self.fit_focal + 2 * self.fit_centre
 
     def apply(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(prediction (F, J, 2) px, camera-frame points y = R x + t (F, J, 3))."""
@@ -231,21 +233,23 @@ class _PinholeView:
         parts = [dw, P]
         if self.fit_focal:
             parts.append(_pinhole_pixels(self.f, 0.0, y)[..., None])  # d u / d log f
+        if self.fit_centre:
+            parts.append(np.broadcast_to(np.eye(2), y.shape[:-1] + (2, 2)))  # d u / d c
         return dx, np.concatenate(parts, -1)
 
     def moved(self, dc: np.ndarray) -> "_PinholeView":
         dc = np.asarray(dc).reshape(-1)
         f = self.f * float(np.exp(dc[6])) if self.fit_focal else self.f
-        return _PinholeView(_rotvec(dc[:3])[None] @ self.R, self.t + dc[3:6], f, self.c, self.cam_of,
-                            self.fit_focal)
+        c = self.c + dc[6 + self.fit_focal:] if self.fit_centre else self.c
+        return replace(self, R=_rotvec(dc[:3])[None] @ self.R, t=self.t + dc[3:6], f=f, c=c)
 
     def take(self, idx: np.ndarray) -> "_PinholeView":
-        return _PinholeView(self.R, self.t, self.f, self.c, self.cam_of[idx], self.fit_focal)
+        return replace(self, cam_of=self.cam_of[idx])
 
     def put(self, idx: np.ndarray, sub: "_PinholeView", accept: np.ndarray) -> "_PinholeView":
         if not accept.any():
             return self
-        return _PinholeView(sub.R, sub.t, sub.f, sub.c, self.cam_of, self.fit_focal)
+        return replace(sub, cam_of=self.cam_of)
 
     @property
     def K(self) -> np.ndarray:
