@@ -195,7 +195,7 @@ from .starts import _fit_3d, _initial_camera, _sequential_ik
 from .observability import _fill_unseen, _gauge_directions, _hold, _notes, _structural, _unseen
 from .candidates import FACE_ON_DEG, TIE_VARIANCES, _same_motion, _face_on_planes, _frame_ranges, _nearest_rest_branch, _viterbi_reanchored
 from .selection import _most_probable, _prefer_rest, view_side_valid
-from .uncertainty import assess_fit
+from .uncertainty import CAMERA_MISFIT_RATIO, assess_fit, camera_misfit, track_jitter
 
 __all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"]
 
@@ -348,7 +348,9 @@ def fit_joint_angles(
         perspective. True: a pinhole camera in any case; with neither given its focal length and
         principal point are both fitted (see "Perspective" in the module docstring), and where the
         tracks carry no measurable perspective the weak-perspective fit is reported, as with
-        ``image_size``. It costs a perspective fit after the weak one (about 1.5-2 times the time).
+        ``image_size``. It costs a perspective fit after the weak one: on close footage about the time
+        of a fit given the intrinsics; where the weak fit already explains the tracks and its perspective
+        refit measures nothing (a far camera), about 1.2 times the weak fit's time.
         False: weak perspective (``intrinsics`` and ``image_size`` must then be None).
     search_ties
         Also search beyond the fit's own candidates for motions that fit the tracks as well (depth flips
@@ -739,9 +741,12 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         if not any(_same_motion(robot, st["q"], d["q"]) for d in distinct):
             distinct.append(st)
     t1 = time.perf_counter()
+    # the weak fit within the tracks' own jitter: its winner alone may tell that there is no perspective
+    rn_weak = np.linalg.norm(weak.reprojected() - np.nan_to_num(tracks_u), axis=-1)
+    weak_fits = camera_misfit(rn_weak, w2, track_jitter(tracks_u, w2))[0] <= CAMERA_MISFIT_RATIO
     best = refine_perspective(robot, distinct, tracks_u, w2, None if cam is None else cam.K, image_size, accel_std,
                               fps, speed_decay_s, _unseen(robot, w2), max_iter, tol, weak_sse,
-                              accel_std is not None, search_ties)
+                              accel_std is not None, search_ties, weak_fits=bool(weak_fits))
     timings = dict(weak.timings, perspective=time.perf_counter() - t1)
     focal = best.get("focal")
     focal_std = best.get("focal_std")

@@ -252,11 +252,17 @@ def _camera_covariance(robot: RobotKinematics, q: np.ndarray, view: _PinholeView
 def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.ndarray, w: np.ndarray,
                        K: np.ndarray | None, image_size, accel_std: float | None, fps: float,
                        speed_decay_s: float | None, unseen: np.ndarray, max_iter: int, tol: float,
-                       weak_sse: float, smooth: bool, search_ties: bool = False) -> dict:
+                       weak_sse: float, smooth: bool, search_ties: bool = False, weak_fits: bool = False) -> dict:
     """Fit the pinhole camera and joint angles from the weak-perspective starts (every one through the
     camera stage; the first, the weak fit's winner, and the others of lowest cost there refined in full,
     :data:`MAX_STARTS` in all), and from the best graft of the others onto the winner
-    (:func:`_grafted`); keep the lowest objective.
+    (:func:`_grafted`); keep the lowest objective. With the focal length unknown and ``weak_fits`` (the weak
+    fit's typical point within what the tracks' jitter allows: ``uncertainty.camera_misfit``), the first is
+    refined before the others are screened, and where its fit measures no perspective
+    (:func:`_measured_perspective`) it is returned, not measured, without them: a far camera's footage
+    (the UR10, 300 frames, weak camera: 1.8 -> 1.13 times the weak fit's time). Not where the weak fit
+    misfits: the UR10 filmed close (``bench_no_camera.py``, seed 2, misfit 5.1) measured no perspective from
+    its weak winner alone and perspective from the other starts.
 
     starts: dicts with q (F, nq), view (weak :class:`_View`), free, free_prior (F, nv), delta (Huber).
     K (3, 3) known intrinsics (tracks already undistorted), or None with ``image_size`` (w, h): the
@@ -384,21 +390,8 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     given = [st["q"] for st in starts]
     starts = list(starts) + [dict(st, q=q, view=_camera_view(robot.positions(q), tr, w, False), turn_of=st)
                              for st in starts for q in _base_turns(robot, st["q"])]
-    step = stage_steps("robot fit, perspective: the camera from start", len(starts))
-    screened, chosen_f = [], None
-    for k, st in enumerate(starts):  # the first over the focal guesses, the others at its focal
-        step(k)
-        screened.append(camera_start(st, f_inits if k == 0 else [chosen_f or f_inits[0]]))
-        if k == 0 and fit_focal:
-            chosen_f = screened[0][3]
-    # the turned starts compete for a slot of their own: on the xArm7 from below (full ranges, seed 0) one of
-    # lower camera-stage cost pushed the true basin's start out, and the fit ended 151 degrees off
-    by_cost = sorted(range(1, len(starts)), key=lambda k: screened[k][0])
-    keep = [0] + [k for k in by_cost if k < len(given)][:MAX_STARTS - 1] + [k for k in by_cost if k >= len(given)][:1]
-    step = stage_steps("robot fit, perspective: refining in full, start", len(keep))
-    for i, k in enumerate(keep):
-        step(i)
-        st, (_, pv, q, f0, n_iter) = starts[k], screened[k]
+    def refine_in_full(k):
+        st, (_, pv, q, _, n_iter) = starts[k], screened[k]
         none_free = np.zeros_like(st["free"])
         pv = replace(pv, fit_focal=fit_focal, fit_centre=fit_centre)
         if fit_focal:
@@ -407,7 +400,30 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
                 q, _, _, _, _, it = _sequence_lm(robot, q, tr, w, pv, st["free"], ~ones, 10, 1e-8, None)
                 pv = _sequence_lm(robot, q, tr, w, pv, none_free, ones, 10, 1e-10, st["delta"])[1]
                 n_iter += it
-        fits += finish(q, pv, st, n_iter)
+        return finish(q, pv, st, n_iter)
+
+    early = fit_focal and weak_fits  # the first start may settle that there is no perspective (docstring)
+    step = stage_steps("robot fit, perspective: the camera from start", len(starts))
+    screened, chosen_f, first = [], None, []
+    for k, st in enumerate(starts):  # the first over the focal guesses, the others at its focal
+        step(k)
+        screened.append(camera_start(st, f_inits if k == 0 else [chosen_f or f_inits[0]]))
+        if k == 0 and fit_focal:
+            chosen_f = screened[0][3]
+        if k == 0 and early:
+            first = refine_in_full(0)
+            lead = min(first, key=lambda r: r["objective"])
+            measured = _measured_perspective(robot, lead, tr, w, weak_sse, n_obs, fit_centre)
+            if not measured["measured"]:
+                return dict(lead, **measured)
+    # the turned starts compete for a slot of their own: on the xArm7 from below (full ranges, seed 0) one of
+    # lower camera-stage cost pushed the true basin's start out, and the fit ended 151 degrees off
+    by_cost = sorted(range(1, len(starts)), key=lambda k: screened[k][0])
+    keep = [0] + [k for k in by_cost if k < len(given)][:MAX_STARTS - 1] + [k for k in by_cost if k >= len(given)][:1]
+    step = stage_steps("robot fit, perspective: refining in full, start", len(keep))
+    for i, k in enumerate(keep):
+        step(i)
+        fits += first if k == 0 and early else refine_in_full(k)
     contend([])
     stage("robot fit, perspective: other minima (a searched camera, grafts, twins, windows, turned joints)")
     searched = _searched_start(robot, fits[0], tr, w, starts[0], K, n_obs, weak_sse)
@@ -458,27 +474,38 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     best["measured"], best["reason"] = True, ""
     best["aspect"] = aspect
     if fit_focal:
-        cov = _camera_covariance(robot, best["q"], best["view"], tr, w, best["free"], best["delta"], var)
-        f = best["view"].f
-        std = float(f * np.sqrt(max(cov[6, 6], 0.0)))
-        best["focal"], best["focal_std"] = float(f), std
-        if fit_centre:
-            best["centre"] = best["view"].c.copy()
-            best["centre_std"] = np.sqrt(np.maximum(np.diag(cov)[7:9], 0.0))
-        gain = weak_sse - best["sse"]
-        if not np.isfinite(std) or std > FOCAL_REL_STD * f:
-            best["measured"] = False
-            best["reason"] = (f"the focal length is not measurable from these tracks ({f:.0f} +- {std:.0f} px: no "
-                              "measurable perspective)")
-        elif gain <= LR_MARGIN * var:
-            best["measured"] = False
-            best["reason"] = (f"perspective does not fit the tracks measurably better than weak perspective "
-                              f"(squared residuals {best['sse']:.4g} against {weak_sse:.4g} px^2, noise "
-                              f"variance {var:.3g} px^2: no measurable perspective)")
+        best.update(_measured_perspective(robot, best, tr, w, weak_sse, n_obs, fit_centre))
     if best["measured"]:  # else the weak fit is reported, with its own
         stage("robot fit, perspective: the joint angles' standard deviations and alternatives")
         best["trust"] = _trust(robot, best, fits, tr, w, search_ties)
     return best
+
+
+def _measured_perspective(robot: RobotKinematics, fit: dict, tracks: np.ndarray, w: np.ndarray, weak_sse: float,
+                          n_obs: int, fit_centre: bool) -> dict:
+    """Whether a fit of unknown focal length measures perspective: ``{"measured", "reason", "focal",
+    "focal_std"[, "centre", "centre_std"]}``. Not measured where the focal's standard deviation
+    (Gauss-Newton, the joints eliminated, scaled by the fit's residual variance) exceeds
+    :data:`FOCAL_REL_STD` of it, or where the fit does not beat the weak fit's squared residuals
+    ``weak_sse`` by :data:`LR_MARGIN` noise variances (a likelihood-ratio test)."""
+    var = max(fit["sse"] / max(n_obs - 7, 1), 1e-12)
+    view = fit["view"]
+    cov = _camera_covariance(robot, fit["q"], view, tracks, w, fit["free"], fit["delta"], var)
+    f = view.f
+    std = float(f * np.sqrt(max(cov[6, 6], 0.0)))
+    out = {"measured": True, "reason": "", "focal": float(f), "focal_std": std}
+    if fit_centre:
+        out["centre"], out["centre_std"] = view.c.copy(), np.sqrt(np.maximum(np.diag(cov)[7:9], 0.0))
+    if not np.isfinite(std) or std > FOCAL_REL_STD * f:
+        out["measured"] = False
+        out["reason"] = (f"the focal length is not measurable from these tracks ({f:.0f} +- {std:.0f} px: no "
+                         "measurable perspective)")
+    elif weak_sse - fit["sse"] <= LR_MARGIN * var:
+        out["measured"] = False
+        out["reason"] = (f"perspective does not fit the tracks measurably better than weak perspective "
+                         f"(squared residuals {fit['sse']:.4g} against {weak_sse:.4g} px^2, noise "
+                         f"variance {var:.3g} px^2: no measurable perspective)")
+    return out
 
 
 def _nearest_rest_of_exact(robot: RobotKinematics, fits: list[dict], w: np.ndarray) -> dict:
