@@ -260,7 +260,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     fit's typical point within what the tracks' jitter allows: ``uncertainty.camera_misfit``), the first is
     refined before the others are screened, and where its fit measures no perspective
     (:func:`_measured_perspective`) it is returned, not measured, without them: a far camera's footage
-    (the UR10, 300 frames, weak camera: 1.8 -> 1.13 times the weak fit's time). Not where the weak fit
+    (the UR10, 300 frames, weak camera: 1.8 -> 1.19 times the weak fit's time). Not where the weak fit
     misfits: the UR10 filmed close (``bench_no_camera.py``, seed 2, misfit 5.1) measured no perspective from
     its weak winner alone and perspective from the other starts.
 
