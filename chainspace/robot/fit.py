@@ -741,9 +741,10 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         if not any(_same_motion(robot, st["q"], d["q"]) for d in distinct):
             distinct.append(st)
     t1 = time.perf_counter()
-    # the weak fit within the tracks' own jitter: its winner alone may tell that there is no perspective
-    rn_weak = np.linalg.norm(weak.reprojected() - np.nan_to_num(tracks_u), axis=-1)
-    weak_fits = camera_misfit(rn_weak, w2, track_jitter(tracks_u, w2))[0] <= CAMERA_MISFIT_RATIO
+    # the focal unknown and the weak fit within the tracks' own jitter: its winner alone may tell that there
+    # is no perspective (refine_perspective's early stop; with the intrinsics known there is none)
+    weak_fits = cam is None and camera_misfit(np.linalg.norm(weak.reprojected() - np.nan_to_num(tracks_u), axis=-1),
+                                              w2, track_jitter(tracks_u, w2))[0] <= CAMERA_MISFIT_RATIO
     best = refine_perspective(robot, distinct, tracks_u, w2, None if cam is None else cam.K, image_size, accel_std,
                               fps, speed_decay_s, _unseen(robot, w2), max_iter, tol, weak_sse,
                               accel_std is not None, search_ties, weak_fits=bool(weak_fits))

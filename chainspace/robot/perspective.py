@@ -77,6 +77,12 @@ def _noise_variance(fit: dict, w: np.ndarray) -> float:
     return max(_noise_sigma(fit["rn"], w), fit["start"]["px_floor"]) ** 2
 
 
+def _residual_variance(fit: dict, n_obs: int) -> float:
+    """The residual variance (px^2) of a fit's squared residuals over its n_obs observed coordinates, less
+    the static camera's 7 parameters: the unit of the likelihood-ratio tests."""
+    return max(fit["sse"] / max(n_obs - 7, 1), 1e-12)
+
+
 def _in_front(fit: dict) -> bool:
     """Whether every point of a perspective fit lies in front of its camera (positive depth)."""
     return bool((fit["view"].apply(fit["pos"])[1][..., 2] > 0).all())
@@ -463,7 +469,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
                                                                          for o in fits)])
     best = _nearest_rest_of_exact(robot, fits, w)
     fits[:] = [best] + [r for r in fits if r is not best] + [r for r in turned if r["objective"] >= clear]
-    var = max(best["sse"] / max(n_obs - 7, 1), 1e-12)
+    var = _residual_variance(best, n_obs)
     # (the weak fit's mirror/flip alternatives that perspective settles or not: the windows', turns' and wrist
     # twins' own ties are _trust's)
     others = [r for r in fits if r is not best and not any(r.get(k) for k in ("window", "twin", "turn")) and
@@ -488,7 +494,7 @@ def _measured_perspective(robot: RobotKinematics, fit: dict, tracks: np.ndarray,
     (Gauss-Newton, the joints eliminated, scaled by the fit's residual variance) exceeds
     :data:`FOCAL_REL_STD` of it, or where the fit does not beat the weak fit's squared residuals
     ``weak_sse`` by :data:`LR_MARGIN` noise variances (a likelihood-ratio test)."""
-    var = max(fit["sse"] / max(n_obs - 7, 1), 1e-12)
+    var = _residual_variance(fit, n_obs)
     view = fit["view"]
     cov = _camera_covariance(robot, fit["q"], view, tracks, w, fit["free"], fit["delta"], var)
     f = view.f
