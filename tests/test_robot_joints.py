@@ -213,6 +213,34 @@ def test_batched_kinematics_match_pinocchio(urdf, tmp_path, request):
     assert np.allclose(RobotKinematics(path, from_urdf(path)).positions(q), pos_ref, atol=1e-12)
 
 
+def test_joints_that_move_no_tracked_point_are_left_out_of_the_kinematics(tmp_path):
+    """A gripper beyond the last tracked point (the Panda's fingers): its joints are not placed and its
+    Jacobian column is zero, while the tracked points and their Jacobians are Pinocchio's own."""
+    import pinocchio as pin
+
+    from chainspace.robot.kinematics import _random_q
+
+    path = tmp_path / "mimic_gripper.urdf"
+    path.write_text(MIMIC_URDF)
+    robot = RobotKinematics(path, from_urdf(path, links=["base", "upper", "lower", "palm"]))
+    fingers = [robot.model.getJointId(n) for n in ("finger_left_joint", "finger_right_joint")]
+    assert robot._batch is not None and set(fingers).isdisjoint(robot._batch.joints)
+    q = _random_q(robot, np.random.default_rng(2), 20)
+    q[:, robot.model.joints[fingers[0]].idx_q] = 0.03  # open: a finger column would not be zero by accident
+    placed = robot.placed(q)
+    assert np.isnan(placed.R[fingers]).all()  # not placed
+    pos, jac = robot.jacobians(q)
+    d = robot.model.createData()
+    for f in range(len(q)):
+        pin.computeJointJacobians(robot.model, d, q[f])
+        pin.updateFramePlacements(robot.model, d)
+        for k, fid in enumerate(robot.frame_ids):
+            ref = pin.getFrameJacobian(robot.model, d, fid, pin.LOCAL_WORLD_ALIGNED)[:3]
+            np.testing.assert_allclose(pos[f, k], d.oMf[fid].translation, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(jac[f, k], ref, rtol=0, atol=1e-12)
+    assert np.abs(jac[..., :3]).max() > 0.1 and not jac[..., 3].any()  # the arm moves the points, the finger none
+
+
 @pytest.mark.parametrize("urdf", ["milling_arm", "mimic"])
 @pytest.mark.parametrize("loop", [False, True])
 def test_jacobians_of_some_placed_frames_are_theirs(urdf, loop, tmp_path):

@@ -16,8 +16,8 @@ from ..errors import DescriptionError, DescriptionNotFoundError
 class Placed(NamedTuple):
     """Configurations' kinematics (:meth:`RobotKinematics.placed`): the chain's points (F, J, 3), metres,
     and the joints' world rotations R (njoints, F, 3, 3) and origins p (njoints, F, 3); ``spatial``
-    (F, 6, nv extended): Pinocchio's world joint Jacobian where the kinematics looped over Pinocchio,
-    else None (made from R and p when asked)."""
+    (F, 6, columns that move a point, :attr:`RobotKinematics._cols`): Pinocchio's world joint Jacobian where
+    the kinematics looped over Pinocchio, else None (made from R and p when asked)."""
 
     pos: np.ndarray
     R: np.ndarray
@@ -97,7 +97,11 @@ class RobotKinematics:
                 jm = m.joints[j]
                 x0 = int(getattr(jm, "idx_vExtended", jm.idx_v))
                 self._carried_by[k, x0:x0 + int(getattr(jm, "nvExtended", jm.nv))] = True
-        self._mimic = nvx != self.nv or not np.array_equal(self._fold, np.eye(self.nv))
+        # Only the joints that carry a tracked point are placed and differentiated: a gripper's fingers
+        # beyond the last tracked point move none (the Panda's two: 22 % of its kinematics' time)
+        self._cols = np.flatnonzero(self._carried_by.any(0))  # the extended velocity columns that move a point
+        self._carried_by, self._fold = self._carried_by[:, self._cols], self._fold[self._cols]
+        self._mimic = not np.array_equal(self._fold, np.eye(self.nv))  # a mimic, or a column that moves nothing
         self._batch = _BatchedKinematics.of(self)
         # Where solvers start from "the rest pose": the rest pose with every revolute joint turned a
         # little, because rest poses are often singular (a stretched wrist, an upright arm), where the
@@ -298,10 +302,10 @@ class RobotKinematics:
             R, p = self._batch.placements(q)
         else:
             placements = np.empty((m.njoints, len(q), 4, 4))
-            spatial = np.empty((len(q), 6, self._fold.shape[0]))
+            spatial = np.empty((len(q), 6, len(self._cols)))
             for f, qf in enumerate(q):
                 pin.computeJointJacobians(m, d, qf)
-                spatial[f] = d.J
+                spatial[f] = d.J[:, self._cols]
                 placements[:, f] = [M.homogeneous for M in d.oMi.tolist()]
             R, p = placements[..., :3, :3], placements[..., :3, 3]
         return Placed(self._points(R, p), R, p, spatial)
@@ -358,6 +362,9 @@ class _BatchedKinematics:
         # each axis's cross-product matrix K and K^2 (Rodrigues), made once rather than at every call
         self.K = np.array([[[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]] for a in axis])
         self.KK = self.K @ self.K
+        self.joints = list(range(1, len(parents)))  # the joints placed (:meth:`of` keeps those that move a point)
+        self.unplaced = []
+        self.column_of, self.n_columns = col, nvx  # each joint's column in world_jacobian's J, and their number
 
     @classmethod
     def of(cls, robot: RobotKinematics) -> "_BatchedKinematics | None":
@@ -399,6 +406,13 @@ class _BatchedKinematics:
         ref = np.array([M.homogeneous for M in d.oMi.tolist()])
         if not (np.allclose(R[:, 0], ref[:, :3, :3], atol=1e-9) and np.allclose(p[:, 0], ref[:, :3, 3], atol=1e-9)):
             return None  # a joint this class reads differently from Pinocchio: keep Pinocchio
+        # from here on only the joints that carry a tracked point (parents before children, as Pinocchio
+        # numbers them), each Jacobian column at its place among the robot's columns that move a point
+        out.joints = sorted({j for k in robot._parent_joint for j in m.supports[int(k)][1:]})
+        out.unplaced = sorted(set(range(1, n)) - set(out.joints))
+        out.column_of = np.full(n, -1)
+        out.column_of[out.joints] = np.searchsorted(robot._cols, col[out.joints])
+        out.n_columns = len(robot._cols)
         return out
 
     def placements(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -408,7 +422,8 @@ class _BatchedKinematics:
         F, n = len(q), len(self.parents)
         R, p = np.empty((n, F, 3, 3)), np.empty((n, F, 3))
         R[0], p[0] = np.eye(3), 0.0
-        for j in range(1, n):
+        R[self.unplaced], p[self.unplaced] = np.nan, np.nan  # joints that move no tracked point (:meth:`of`)
+        for j in self.joints:
             Rp, pp = R[self.parents[j]], p[self.parents[j]]
             # the joint's frame at zero motion, then its motion (Rodrigues about its axis, or a slide
             # along it): products with constant 3x3 matrices, as one matrix product over all frames
@@ -432,19 +447,19 @@ class _BatchedKinematics:
         return R, p
 
     def world_jacobian(self, R: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """Pinocchio's world joint Jacobian ``J`` (F, 6, nv (extended)) from :meth:`placements`: per joint
-        column, the linear velocity of the point at the world origin and the angular velocity, as
-        ``computeJointJacobians`` gives it."""
+        """Pinocchio's world joint Jacobian ``J`` (F, 6, columns) from :meth:`placements`, the columns of the
+        joints placed: per joint, the linear velocity of the point at the world origin and the angular
+        velocity, as ``computeJointJacobians`` gives it."""
         F = R.shape[1]
-        J = np.zeros((6, self.nvx, F))  # frames innermost: each entry's row of frames is contiguous
-        for j in range(1, len(self.parents)):
+        J = np.zeros((6, self.n_columns, F))  # frames innermost: each entry's row of frames is contiguous
+        for j in self.joints:
             if self.kind[j] == "fixed":
                 continue
             w = _right(self.scaling[j] * R[j], self.axis[j]).T  # (3, F) axis in world axes
             if self.kind[j] == "prismatic":
-                J[:3, self.col[j]] = w
+                J[:3, self.column_of[j]] = w
             else:
-                o, c = p[j].T, self.col[j]
+                o, c = p[j].T, self.column_of[j]
                 J[0, c] = o[1] * w[2] - o[2] * w[1]
                 J[1, c] = o[2] * w[0] - o[0] * w[2]
                 J[2, c] = o[0] * w[1] - o[1] * w[0]
