@@ -10,6 +10,11 @@ from .kinematics import RobotKinematics
 from .views import _View
 
 
+# Fewest rows for which the solver looks for rows that repeat or meet: below it (the sequential IK's
+# blocks of 6 frames, solved a few hundred times a fit) the search cost more than the solves it saved
+SHARED_ROWS_MIN = 16
+
+
 def _huber(rn: np.ndarray, delta: float | None) -> tuple[np.ndarray, np.ndarray]:
     """Huber loss rho(r) and IRLS weight rho'(r) / (2 r) of residual norms (plain squares when delta is None)."""
     if delta is None:
@@ -210,7 +215,7 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
     F, J, D = target.shape
     nv, nc = robot.nv, view.n_params
     tz = np.nan_to_num(target)
-    if not free_view.any() and len(view.S) == 1 and F > 1:
+    if not free_view.any() and len(view.S) == 1 and F >= SHARED_ROWS_MIN:
         # the frames are independent problems: rows that repeat one (same start, target, weights and
         # free directions; a branch search starts several ways that often meet) are solved once
         key = np.concatenate([np.round(q, 9), tz.reshape(F, -1), w, free], 1)
