@@ -93,8 +93,11 @@ def main(argv=None) -> int:
     try:
         rows = run(a.robots, a.seeds, a.frames, lambda m: print(m, file=sys.stderr, flush=True), a.search_ties)
     except Exception as exc:  # example-robot-data missing: say so, exit non-zero (no empty table)
-        from chainspace.errors import ChainspaceError
+        from chainspace.errors import ChainspaceError, DescriptionNotFoundError
 
+        if isinstance(exc, DescriptionNotFoundError):
+            print(f"bench_ambiguity: skipped: {exc}", file=sys.stderr)
+            return 77  # `make bench`: data missing, skipped
         if isinstance(exc, ChainspaceError):
             print(f"bench_ambiguity: {exc}", file=sys.stderr)
             return 2

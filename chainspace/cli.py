@@ -93,6 +93,9 @@ _SHELL_ADVICE = (
     ("pass init_pose (J, 3)", "give --init-pose (J, 3)"),
     ("pass intrinsics= (a calibration), image_size=(width, height) or perspective=True",
      "give --intrinsics FILE (a calibration), --image-size W H or --perspective"),
+    ("(extra_frames)", "(--extra-frame)"),
+    ("(fit.alternatives)", "(alternatives in joint_angles.npz; drawn grey in the joint plots)"),
+    ("the camera-side rule (view_from)", "the camera-side rule (--view-from)"),
 )
 
 
@@ -251,6 +254,12 @@ class Method(str, Enum):
 class Camera(str, Enum):
     static = "static"
     per_frame = "per-frame"
+
+
+class ViewFrom(str, Enum):
+    above = "above"
+    below = "below"
+    either = "either"
 
 
 class Suite(str, Enum):
@@ -429,6 +438,13 @@ def fit(
     perspective: Annotated[bool, typer.Option(
         "--perspective", help="Fit a pinhole camera even without --intrinsics/--fov/--image-size: focal "
                               "length and principal point estimated from the tracks (slower).")] = False,
+    view_from: Annotated[ViewFrom, typer.Option(
+        help="Where the camera stands: above the robot's base plane (or level), below it (a ceiling-mounted "
+             "robot, a low tripod), or either (then of a motion and its mirror image, which weak perspective "
+             "cannot tell apart, the one nearer the rest pose is reported).")] = ViewFrom.above,
+    search_ties: Annotated[bool, typer.Option(
+        "--search-ties", help="Also search for other motions that fit the tracks as well, and report "
+                              "the joints they leave ambiguous (several times slower).")] = False,
     overwrite: Overwrite = False,
 ) -> None:
     """Fit the robot's joint angles (Pinocchio) to a reconstruction or to 2D tracks.
@@ -451,6 +467,7 @@ def fit(
         fit_kw["image_size"] = _image_size(image_size)
     if perspective:
         fit_kw["perspective"] = True
+    fit_kw.update(view_from=None if view_from is ViewFrom.either else view_from.value, search_ties=search_ties)
     urdf_path = None if urdf is None else _urdf_path(urdf)
     fit_chain = None
     if source.suffix.lower() == ".npz" and _is_result(source):
@@ -548,6 +565,28 @@ def _is_result(path: Path) -> bool:
         return False
 
 
+def _thresholds(items: list[str]) -> dict[str, float]:
+    """--threshold NAME=VALUE options as validate's thresholds (names and values checked here, in the
+    command line's words)."""
+    from .robot.validation import DEFAULT_THRESHOLDS
+
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or name.strip() not in DEFAULT_THRESHOLDS:
+            raise typer.BadParameter(f"{item!r}: give NAME=VALUE with NAME one of {', '.join(DEFAULT_THRESHOLDS)}",
+                                     param_hint="--threshold")
+        try:
+            v = float(value)
+        except ValueError:
+            v = float("nan")
+        if not v > 0:  # NaN too
+            raise typer.BadParameter(f"{item!r}: the value must be a positive number (inf: not judged)",
+                                     param_hint="--threshold")
+        out[name.strip()] = v
+    return out
+
+
 @app.command(epilog="Example: chainspace validate fit/joint_angles.npz --truth truth_q.npy --out fit/")
 @_guarded
 def validate(
@@ -555,12 +594,19 @@ def validate(
     truth: Annotated[Optional[Path], typer.Option(help="True joint angles, one per joint (F, nv) "
                                                        "or Pinocchio's q (F, nq), rad/m: .npy, .csv or .npz ('q').")] = None,
     out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Folder for validation.json/.md.")] = None,
+    threshold: Annotated[Optional[list[str]], typer.Option(
+        metavar="NAME=VALUE", help="Set a check's threshold, repeatable: joint_rms_deg, error_3d_pct_reach (with "
+                                   "--truth), tracks_misfit (without), reprojection_rms_px, bone_error_pct; "
+                                   "inf: not judged.")] = None,
     overwrite: Overwrite = False,
 ) -> None:
-    """Validate a joint-angle fit: per-joint angle errors against the truth, reprojection error, and
-    bone lengths against the URDF. Prints the report table; exit code 1 if validation failed."""
+    """Validate a joint-angle fit: per-joint angle errors and the 3D error against the truth, or without
+    one whether the fitted robot explains its tracks; reprojection error, and bone lengths against the
+    URDF. Prints the report table; exit code 1 if validation failed."""
     from .io.results import load_results, save_results
     from .robot.validation import validate as run
+
+    thresholds = _thresholds(threshold or [])
 
     if out is not None:
         _check_outputs([out / "validation.json", out / "validation.md"], overwrite)
@@ -570,7 +616,7 @@ def validate(
     truth_q = None if truth is None else _load_q(truth, list(fitted.joint_names), np.shape(fitted.q)[1])
     if truth_q is not None and len(truth_q) != len(fitted.q):
         raise TrackError(f"{truth}: {len(truth_q)} frames of joint angles for a fit of {len(fitted.q)} frames")
-    report = run(fitted, truth_q)
+    report = run(fitted, truth_q, thresholds=thresholds)
     typer.echo(report.table())
     if out is not None:
         for p in save_results(report, out, overwrite=overwrite):

@@ -83,6 +83,15 @@ def test_reconstruction_benchmark_without_its_data_says_skipped(capsys, monkeypa
     assert rc == 77 and "skipped: no benchmark data" in capsys.readouterr().err
 
 
+def test_static_camera_benchmark_without_its_data_says_skipped(capsys, monkeypatch, tmp_path):
+    """The held-out walks are not bundled: without the shared data the set is a row saying so, and the
+    script exits 77 (`make bench`: skipped), not with a traceback."""
+    monkeypatch.setenv("CHAINSPACE_DATA", str(tmp_path))  # an empty data folder
+    rc = _main("bench_static_camera.py")(["--quick", "--set", "held out"])
+    out, err = capsys.readouterr()
+    assert rc == 77 and "data missing" in out and "skipped: no data" in err
+
+
 def _run(robot, outcome="fit", errors=(), statuses=None, setting="full, above"):
     statuses = statuses or ["observable"] * len(errors)
     joints = [dict(name=f"j{k}", status=s, error=e, unit="deg",

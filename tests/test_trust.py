@@ -200,6 +200,42 @@ def test_fit_passes_fps_and_extra_frames(tmp_path, monkeypatch):
     assert np.isfinite(seen["W"][:, chain.joint_index("probe")]).all()  # its track was read
 
 
+@pytest.mark.parametrize("args, expected", [([], ("above", False)), (["--view-from", "below"], ("below", False)),
+                                           (["--view-from", "either", "--search-ties"], (None, True))])
+def test_fit_passes_view_from_and_search_ties(tmp_path, monkeypatch, args, expected):
+    """`fit --view-from below|either --search-ties`: the API's view_from and search_ties from the shell."""
+    from types import SimpleNamespace
+
+    import chainspace.reconstruction.pipeline as pipeline
+    import chainspace.robot.fit as robot_fit
+    from chainspace.errors import TrackError
+
+    seen = {}
+
+    def fake_fit(rec, urdf=None, **kwargs):
+        seen.update(kwargs)
+        raise TrackError("stopped here by the test")
+
+    monkeypatch.setattr(pipeline, "reconstruct", lambda W, chain, *a, **k: SimpleNamespace(
+        poses=np.zeros((len(W), chain.n_joints, 3)), chain=chain))
+    monkeypatch.setattr(robot_fit, "fit_joint_angles", fake_fit)
+    tracks = _milling_tracks(tmp_path)
+    result = runner.invoke(app, ["fit", str(tracks), "--urdf", "milling_arm", "-o", str(tmp_path / "fit")] + args)
+    assert "stopped here by the test" in _one_line_error(result)
+    assert (seen["view_from"], seen["search_ties"]) == expected
+
+
+def test_fit_messages_name_the_command_line_options():
+    """The fit's advice in the shell's words: --extra-frame, --view-from, not Python names."""
+    from chainspace.cli import _for_the_shell
+
+    text = _for_the_shell("to see a joint, track a point that moves with it, off its axis (extra_frames); "
+                          "legs or a hanging limb, where the camera-side rule (view_from) does not apply; "
+                          "differ there by 5 deg RMS (fit.alternatives)")
+    assert "--extra-frame" in text and "--view-from" in text and "joint_angles.npz" in text
+    assert "extra_frames" not in text and "(view_from)" not in text and "fit.alternatives" not in text
+
+
 @pytest.mark.parametrize("spec", ["probe", "probe=link_6", "probe=link_6:0,0", "=link_6:0,0,1",
                                   "probe=link_6:0,x,1", "probe=nolink:0,0,1"])
 def test_bad_extra_frame_exits_2(tmp_path, spec):
@@ -427,3 +463,30 @@ def test_validation_table_explains_relative_joints():
                              error_3d_pct_reach=None, reach_mm=1000.0, thresholds={}, checks={}).table()
     assert "| a1 | relative to frame 0 |" in table
     assert "- a1: seen only relative to frame 0" in table and "change since frame 0" in table
+
+
+@pytest.mark.parametrize("spec", ["tracks_misfit", "joint_rms=1", "joint_rms_deg=0", "joint_rms_deg=-1",
+                                  "joint_rms_deg=nan", "joint_rms_deg=abc"])
+def test_bad_validate_threshold_exits_2(tmp_path, spec):
+    result = runner.invoke(app, ["validate", str(tmp_path / "joint_angles.npz"), "--threshold", spec])
+    assert result.exit_code == 2 and "--threshold" in result.output and spec in result.output
+
+
+def test_validate_threshold_reaches_the_report(tmp_path, monkeypatch):
+    """`validate --threshold joint_rms_deg=5 --threshold tracks_misfit=inf`: validate's thresholds."""
+    import chainspace.io.results as results
+    import chainspace.robot.validation as validation
+    from types import SimpleNamespace
+
+    seen = {}
+
+    def fake_validate(fit, truth_q=None, *, thresholds=None, truth_positions=None):
+        seen.update(thresholds)
+        return SimpleNamespace(table=lambda: "table", passed=True)
+
+    monkeypatch.setattr(results, "load_results", lambda path: SimpleNamespace(q=np.zeros((3, 6)), joint_names=[]))
+    monkeypatch.setattr(validation, "validate", fake_validate)
+    result = runner.invoke(app, ["validate", str(tmp_path / "f.npz"), "--threshold", "joint_rms_deg=5",
+                                 "--threshold", "tracks_misfit=inf"])
+    assert result.exit_code == 0, result.output
+    assert seen == {"joint_rms_deg": 5.0, "tracks_misfit": float("inf")}

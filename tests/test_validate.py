@@ -105,3 +105,44 @@ def test_per_joint_fields_of_the_wrong_length_are_a_clear_error(fitted, tmp_path
     with pytest.raises(TrackError, match=field):
         save_results(bad, tmp_path / "fit")
     assert not list(tmp_path.iterdir())  # nothing written
+
+
+@pytest.fixture(scope="module")
+def from_tracks():
+    """The milling arm filmed by synthesize's default pinhole camera, 40 frames, 1 px: fitted with its
+    intrinsics (the right model) and as weak perspective (the wrong one)."""
+    import warnings
+
+    from chainspace.io.descriptions import load_chain
+    from chainspace.reconstruction.pipeline import reconstruct
+
+    chain = load_chain(str(Path(__file__).resolve().parents[1] / "robots" / "milling_arm.urdf"))
+    trial = synthesize(chain, n_frames=40, noise_px=1.0, seed=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = reconstruct(trial.tracks, chain, seed=1)
+        right = fit_joint_angles(rec, intrinsics=trial.intrinsics)
+        wrong = fit_joint_angles(rec)
+    return trial, right, wrong
+
+
+def test_without_a_truth_the_tracks_judge_and_the_reconstruction_is_not_an_error(from_tracks):
+    """No truth: a fit that explains its tracks passes, however far the monocular reconstruction lies
+    from it (that distance is reported, not judged), and a fit of the wrong camera model fails."""
+    trial, right, wrong = from_tracks
+    rep = validate(right)
+    assert rep.passed and set(rep.checks) == {"tracks_misfit"} and rep.tracks_misfit < 1.1
+    assert rep.error_3d_mm is None and rep.distance_to_reconstruction_mm > 10  # the reconstruction's own error
+    assert validate(right, trial.q).passed  # and the truth agrees
+    assert "not judged" in rep.table() and "tracks_misfit" in rep.to_dict()
+    bad = validate(wrong)
+    assert not bad.passed and bad.tracks_misfit > 1.25 and "tracks_misfit <= 1.25: FAIL" in bad.table()
+    assert "poor fit" in wrong.message  # as the fit itself says
+    assert validate(wrong, thresholds={"tracks_misfit": float("inf")}).checks == {}
+
+
+def test_a_fit_of_3d_points_alone_is_judged_on_them(fitted):
+    """Fitted to 3D points (motion capture) and no truth: the distance to those points is the 3D error."""
+    _, fit = fitted
+    rep = validate(fit)
+    assert "error_3d_pct_reach" in rep.checks and rep.tracks_misfit is None and rep.distance_to_reconstruction_mm is None

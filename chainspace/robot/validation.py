@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import DescriptionError, TrackError
 from .result import joint_flags, joint_reasons
+from .uncertainty import CAMERA_MISFIT_RATIO, camera_misfit, track_jitter
 
 __all__ = ["ValidationReport", "validate", "DEFAULT_THRESHOLDS", "BONES_NOTE"]
 
@@ -32,6 +33,9 @@ DEFAULT_THRESHOLDS: dict[str, float] = {
     "error_3d_pct_reach": 1.0,  # mean 3D point error of the fitted robot, % of reach
     "reprojection_rms_px": float("inf"),  # not judged unless set
     "bone_error_pct": float("inf"),  # reconstructed vs URDF bone lengths, not judged unless set
+    # without a truth: the typical tracked point's residual over what the tracks' jitter allows a right
+    # model (uncertainty.camera_misfit), by the fit's own rule for a camera that does not explain them
+    "tracks_misfit": CAMERA_MISFIT_RATIO,
 }
 
 
@@ -41,7 +45,7 @@ BONES_NOTE = (
     "are exact by construction). The reconstruction's come from one camera, which fixes no scale: they "
     "are shown as shares of the chain's total length, beside the URDF's shares. A difference there means "
     "the reconstruction's proportions are off (a bone seen end-on, a hidden end); it is not an error of "
-    "the fitted joint angles, and it is not judged unless bone_error_pct is set."
+    "the fitted joint angles, and it is not judged unless a bone_error_pct threshold is given."
 )
 
 
@@ -60,6 +64,11 @@ class ValidationReport:
     checks: dict[str, bool]
     message: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
+    #: without a truth: the fitted robot's mean distance from the monocular reconstruction (mm, after the
+    #: fit's similarity); not an error (the reconstruction has its own) and not judged
+    distance_to_reconstruction_mm: float | None = None
+    #: without a truth: :func:`~chainspace.robot.uncertainty.camera_misfit` of the fit on its tracks
+    tracks_misfit: float | None = None
 
     @property
     def passed(self) -> bool:
@@ -85,7 +94,9 @@ class ValidationReport:
             "passed": self.passed, "checks": self.checks, "thresholds": self.thresholds,
             "joints": self.joints, "bones": self.bones, "reprojection_rms_px": self.reprojection_rms_px,
             "error_3d_mm": self.error_3d_mm, "error_3d_pct_reach": self.error_3d_pct_reach,
-            "reach_mm": self.reach_mm, "bones_note": BONES_NOTE, "message": self.message, **self.extra,
+            "reach_mm": self.reach_mm, "bones_note": BONES_NOTE, "message": self.message,
+            "distance_to_reconstruction_mm": self.distance_to_reconstruction_mm, "tracks_misfit": self.tracks_misfit,
+            **self.extra,
         })
 
     def to_json(self) -> str:
@@ -132,6 +143,12 @@ class ValidationReport:
         if self.error_3d_mm is not None:
             out.append(f"- 3D error of the fitted robot: {self.error_3d_mm:.2f} mm "
                        f"({self.error_3d_pct_reach:.3f} % of the {self.reach_mm:.0f} mm reach)")
+        if self.distance_to_reconstruction_mm is not None:
+            out.append(f"- no truth given: the fitted robot lies {self.distance_to_reconstruction_mm:.1f} mm (mean) from "
+                       "the monocular reconstruction, which has errors of its own (not judged)")
+        if self.tracks_misfit is not None:
+            out.append(f"- tracks_misfit {self.tracks_misfit:.2f}: the typical tracked point's residual over what "
+                       "the tracks' own jitter allows a right fit (about 0.9 when the fit explains the tracks)")
         for name, ok in self.checks.items():
             t = self.thresholds.get(name)
             out.append(f"- {name} <= {t:g}: {'PASS' if ok else 'FAIL'}")
@@ -164,8 +181,12 @@ def validate(fit: Any, truth_q: Any = None, *, thresholds: dict[str, float] | No
         metres for prismatic joints; as ``fit.angles``), when known.
     thresholds
         Overrides of :data:`DEFAULT_THRESHOLDS`: ``joint_rms_deg`` (every judged joint),
-        ``error_3d_pct_reach`` (3D error of the fitted robot against the truth, or against the
-        reconstruction without a truth), ``reprojection_rms_px``, ``bone_error_pct``.
+        ``error_3d_pct_reach`` (3D error of the fitted robot against the truth; without one, against the
+        3D points it was fitted to when it was fitted to 3D points alone), ``reprojection_rms_px``,
+        ``bone_error_pct``, ``tracks_misfit`` (judged only without a truth, for a fit of 2D tracks:
+        whether the fitted robot explains its tracks, :func:`~chainspace.robot.uncertainty.camera_misfit`;
+        its distance from the monocular reconstruction is then reported, not judged, since the
+        reconstruction has errors of its own: a UR5 fitted 0.8 mm from the truth lay 76 mm from it).
     truth_positions
         True 3D points (F, J, 3) in the robot's base frame, metres; default: forward kinematics of
         ``truth_q``.
@@ -189,10 +210,10 @@ def validate(fit: Any, truth_q: Any = None, *, thresholds: dict[str, float] | No
             raise TrackError(f"truth_q has shape {tq.shape}, the fit's q {q.shape} (or angles ({F}, {robot.nv}))")
     joints = _joint_errors(robot, fit, q, tq)
 
-    # 3D error of the fitted robot (base frame) against the truth; else against the reconstruction
+    # 3D error of the fitted robot (base frame) against the truth; else how far from the reconstruction
     reach = robot.reach()
     pos = fit.positions_base if fit.positions_base is not None else robot.positions(q)
-    err3 = None
+    err3 = distance = misfit = None
     if truth_positions is not None or tq is not None:
         tp = robot.positions(tq) if truth_positions is None else np.asarray(truth_positions, float)
         if tp.shape != pos.shape:
@@ -203,7 +224,11 @@ def validate(fit: Any, truth_q: Any = None, *, thresholds: dict[str, float] | No
         _, R, t = similarity_align(pos, tp, scale=False)
         err3 = float(np.nanmean(np.linalg.norm(pos @ R.T + t - tp, axis=-1)))
     elif fit.residual_3d is not None and fit.scale:
-        err3 = float(np.nanmean(fit.residual_3d) / fit.scale)
+        misfit = _tracks_misfit(fit)
+        if misfit is None:  # fitted to 3D points alone (motion capture): their distance is the error
+            err3 = float(np.nanmean(fit.residual_3d) / fit.scale)
+        else:  # to a monocular reconstruction of tracks: that has errors of its own, the tracks judge
+            distance = float(np.nanmean(fit.residual_3d) / fit.scale)
     bones = _bone_errors(robot, fit)
     rep = None if fit.residual_px is None else float(np.sqrt(np.nanmean(np.asarray(fit.residual_px) ** 2)))
 
@@ -213,6 +238,8 @@ def validate(fit: Any, truth_q: Any = None, *, thresholds: dict[str, float] | No
         checks["joint_rms_deg"] = all(j["rms"] <= th["joint_rms_deg"] for j in judged)
     if err3 is not None:
         checks["error_3d_pct_reach"] = 100 * err3 / reach <= th["error_3d_pct_reach"]
+    if misfit is not None and np.isfinite(th["tracks_misfit"]):
+        checks["tracks_misfit"] = misfit <= th["tracks_misfit"]
     if rep is not None and np.isfinite(th["reprojection_rms_px"]):
         checks["reprojection_rms_px"] = rep <= th["reprojection_rms_px"]
     if np.isfinite(th["bone_error_pct"]):
@@ -225,7 +252,20 @@ def validate(fit: Any, truth_q: Any = None, *, thresholds: dict[str, float] | No
         error_3d_mm=None if err3 is None else 1000 * err3,
         error_3d_pct_reach=None if err3 is None else 100 * err3 / reach, reach_mm=1000 * reach,
         thresholds=th, checks=checks, message=msg, extra={"n_frames": F, "fit_message": fit.message},
+        distance_to_reconstruction_mm=None if distance is None else 1000 * distance, tracks_misfit=misfit,
     )
+
+
+def _tracks_misfit(fit: Any) -> float | None:
+    """camera_misfit of the fit's reprojection on its tracks; None without tracks, a camera, or enough
+    frames to measure the tracks' jitter."""
+    seen = None if fit.tracks is None else fit.reprojected()
+    if seen is None:
+        return None
+    tracks = np.asarray(fit.tracks, float)
+    w = np.isfinite(tracks).all(-1) * (1.0 if fit.confidence is None else np.asarray(fit.confidence, float))
+    ratio = camera_misfit(np.linalg.norm(seen - np.nan_to_num(tracks), axis=-1), w, track_jitter(tracks, w))[0]
+    return float(ratio) if np.isfinite(ratio) else None
 
 
 def _joint_errors(robot, fit, q, tq) -> list[dict[str, Any]]:
