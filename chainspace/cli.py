@@ -94,6 +94,7 @@ _SHELL_ADVICE = (
     ("pass intrinsics= (a calibration), image_size=(width, height) or perspective=True",
      "give --intrinsics FILE (a calibration), --image-size W H or --perspective"),
     ("(extra_frames)", "(--extra-frame)"),
+    ("an extra frame: extra_frames=)", "an extra frame: --extra-frame NAME=LINK:x,y,z)"),
     ("(fit.alternatives)", "(alternatives in joint_angles.npz; drawn grey in the joint plots)"),
     ("the camera-side rule (view_from)", "the camera-side rule (--view-from)"),
 )

@@ -34,6 +34,34 @@ def _tracks(F: int, names, seed: int = 0, missing: float = 0.2):
     return P, C
 
 
+def test_npz_names_under_another_key_are_refused(tmp_path):
+    """Names stored as 'joints' instead of 'names': read in array order they would put every joint in
+    another's place (the count still matches), so the file is refused, naming the key."""
+    P, _ = _tracks(4, HUMAN17, missing=0.0)
+    path = tmp_path / "t.npz"
+    np.savez(path, tracks=P[:, ::-1], joints=np.array(HUMAN17[::-1]))
+    with pytest.raises(TrackError, match=r"t.npz: no 'names' array, but 'joints' holds 17 strings"):
+        load_tracks(path, chain=_human17())
+
+
+def test_a_named_point_the_chain_lacks_is_reported(tmp_path):
+    """A tracks column that no chain joint takes (a tool marker) is left out with a warning naming it;
+    a detector's own extra points (COCO's eyes and ears on human17) are left out without one."""
+    import warnings
+
+    P, C = _tracks(4, HUMAN17 + ["tool_marker"], missing=0.0)
+    path = tmp_path / "t.csv"
+    save_tracks(path, P, HUMAN17 + ["tool_marker"], C)
+    with pytest.warns(UserWarning, match=r"t.csv: 1 tracked point\(s\) not in the chain human17, left out: tool_marker"):
+        Q, _, names = load_tracks(path, chain=_human17())
+    np.testing.assert_array_equal(Q, P[:, :17])
+    P, C = _tracks(4, COCO17, missing=0.0)
+    save_tracks(tmp_path / "c.json", P, list(COCO17), C, format="coco")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_tracks(tmp_path / "c.json", chain=_human17())
+
+
 @pytest.mark.parametrize("fmt,suffix,names", [
     ("csv", ".csv", ["a", "b", "c"]),
     ("npz", ".npz", ["a", "b", "c"]),

@@ -42,6 +42,7 @@ import json
 import math
 import os
 import re
+import warnings
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -96,6 +97,7 @@ DERIVED: dict[str, tuple[str, ...]] = {
 }
 
 _LAYOUTS = {"coco": (COCO17,), "openpose": (BODY_25, COCO18), "mediapipe": (MEDIAPIPE33,)}
+_DETECTOR_NAMES = frozenset(COCO17 + COCO18 + BODY_25 + MEDIAPIPE33)
 
 
 # ---------------------------------------------------------------------------------------- checks
@@ -176,6 +178,15 @@ def map_to_chain(tracks: np.ndarray, confidence: np.ndarray | None, names: Seque
             cols_p[target] = np.mean([cols_p[s] for s in sources], axis=0)
             cols_c[target] = np.min([cols_c[s] for s in sources], axis=0)
     found = [j for j in chain.joints if j in cols_p]
+    # a named point that no chain joint takes and no detector has (a tool marker, a typo) is left out:
+    # say so, since its column is then lost (detectors' extra points, eyes and ears, are left out silently)
+    unused = [n for n in names if n not in _DETECTOR_NAMES and not any(a in chain.joints for a in _aliases(n))
+              and not any(n in srcs and t in chain.joints for t, srcs in DERIVED.items())]
+    if found and unused:
+        warnings.warn(located(
+            f"{len(unused)} tracked point(s) not in the chain {chain.name}, left out: {', '.join(unused[:6])}"
+            f"{', ...' if len(unused) > 6 else ''} (a point on a robot link is added as an extra frame: "
+            "extra_frames=)", source), UserWarning, stacklevel=3)
     if not found:
         raise TrackError(located(
             f"no joint name of the tracks matches the chain {chain.name} (tracks have "
@@ -335,6 +346,13 @@ def _read_npz(path: Path, chain: Any = None) -> tuple[np.ndarray, np.ndarray | N
         raise TrackError(f"{path}: no 'tracks' array (found {', '.join(data) or 'nothing'})")
     P = data["tracks"]
     J = P.shape[1] if P.ndim > 1 else 0
+    if "names" not in data:
+        # names under another key would be ignored and the joints read in array order: refuse instead
+        named = [k for k, v in data.items() if k not in ("tracks", "confidence") and v.ndim == 1 and len(v) == J
+                 and v.dtype.kind in "US"]
+        if named:
+            raise TrackError(f"{path}: no 'names' array, but {named[0]!r} holds {J} strings: if those are the "
+                             "joints' names, store them as 'names' (only that array names the joints)")
     if "names" not in data and chain is not None and P.ndim == 3:
         # no names: like a .npy, the joints must be the chain's, in its order; their count is checked
         if J != chain.n_joints:
