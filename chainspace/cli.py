@@ -339,14 +339,16 @@ def _intrinsics_kwargs(func: Callable[..., Any], camera: Any, what: str) -> dict
 @app.command(epilog="Example: chainspace chains")
 @_guarded
 def chains() -> None:
-    """List the chain descriptions shipped with chainspace, with their joint counts."""
-    from .io.descriptions import list_shipped, shipped
+    """List the chain descriptions shipped with chainspace, with their joint counts, and the
+    example-robot-data robots that --chain and --urdf also take by name."""
+    from .io.descriptions import EXAMPLE_ROBOTS, list_shipped, shipped
 
     for name in list_shipped():
         chain = shipped(name)
         kind = chain.metadata.get("kind", Path(name).suffix.lstrip("."))
         typer.echo(f"{Path(name).stem:<20} {chain.n_joints:>3} joints  {chain.n_bones:>3} bones  "
                    f"{len(chain.rigid_links):>2} rigid links  ({kind}, {name})")
+    typer.echo(f"also by name, from example-robot-data when installed: {', '.join(EXAMPLE_ROBOTS)}")
 
 
 @app.command(epilog="Example: chainspace reconstruct walk.csv --chain human17 --out results/ --bvh walk.bvh")
@@ -550,12 +552,9 @@ def _extra_frame_options(chain: str | Path, extras: dict | None) -> dict[str, An
 
 
 def _urdf_path(urdf: str) -> str:
-    p = Path(urdf)
-    if p.is_file():
-        return str(p)
-    from .io.descriptions import shipped_path
+    from .io.descriptions import description_path
 
-    return str(shipped_path(urdf))
+    return str(description_path(urdf))  # a file, a shipped name, or an example-robot-data robot ("ur5")
 
 
 def _is_result(path: Path) -> bool:
@@ -569,6 +568,8 @@ def _is_result(path: Path) -> bool:
 def _thresholds(items: list[str]) -> dict[str, float]:
     """--threshold NAME=VALUE options as validate's thresholds (names and values checked here, in the
     command line's words)."""
+    if not items:
+        return {}
     from .robot.validation import DEFAULT_THRESHOLDS
 
     out = {}
@@ -617,7 +618,7 @@ def validate(
     truth_q = None if truth is None else _load_q(truth, list(fitted.joint_names), np.shape(fitted.q)[1])
     if truth_q is not None and len(truth_q) != len(fitted.q):
         raise TrackError(f"{truth}: {len(truth_q)} frames of joint angles for a fit of {len(fitted.q)} frames")
-    report = run(fitted, truth_q, thresholds=thresholds)
+    report = run(fitted, truth_q, thresholds=thresholds or None)
     typer.echo(report.table())
     if out is not None:
         for p in save_results(report, out, overwrite=overwrite):

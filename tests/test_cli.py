@@ -155,7 +155,7 @@ def test_validate_exit_code_follows_the_report(monkeypatch, tmp_path, passed):
     seen = {}
 
     class Report:
-        def __init__(self, fit, truth_q):
+        def __init__(self, fit, truth_q, thresholds=None):
             seen["q"], seen["truth"] = fit.q, truth_q
             self.passed = passed
 

@@ -108,3 +108,28 @@ def test_example_robot_errors(monkeypatch):
     monkeypatch.setattr(descriptions, "_example_robot_data_root", lambda: None)
     with pytest.raises(ChainspaceError, match="example-robot-data package is not installed"):
         example_robot_urdf("ur10")
+
+
+def test_example_robots_load_by_name(example_urdf, monkeypatch):
+    """`load_chain("ur5")` (and `--chain ur5`, `--urdf ur5`): an example-robot-data robot by its short name,
+    after the shipped names; without the package the error says so."""
+    path = example_urdf("ur5")
+    chain = load_chain("ur5")
+    assert chain.metadata["urdf_path"] == str(path) and chain.n_joints >= 7
+    with pytest.raises(DescriptionNotFoundError, match=r"no shipped description 'ur55'.*example-robot-data by name: "
+                                                       r"ur3, ur5"):
+        load_chain("ur55")
+    monkeypatch.setattr(descriptions, "_example_robot_data_root", lambda: None)
+    with pytest.raises(DescriptionNotFoundError, match="example-robot-data package is not installed"):
+        load_chain("ur5")
+
+
+def test_cli_fit_takes_an_example_robot_by_name(example_urdf, tmp_path):
+    """`chainspace fit TRACKS --urdf ur5` resolves the name as load_chain does (it failed with 'no shipped
+    description')."""
+    from chainspace.cli import _urdf_path
+
+    assert _urdf_path("ur5") == str(example_urdf("ur5"))
+    assert _urdf_path("milling_arm").endswith("milling_arm.urdf")
+    with pytest.raises(DescriptionNotFoundError):
+        _urdf_path("ur55")

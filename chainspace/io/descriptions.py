@@ -19,7 +19,8 @@ from typing import Any
 from ..chain import KinematicChain
 from ..errors import ChainspaceError, DescriptionError, DescriptionNotFoundError
 
-__all__ = ["load_chain", "shipped", "shipped_path", "list_shipped", "example_robot_urdf", "EXAMPLE_ROBOTS"]
+__all__ = ["load_chain", "shipped", "shipped_path", "list_shipped", "example_robot_urdf", "EXAMPLE_ROBOTS",
+           "description_path"]
 
 # extension -> (module, loader function); modules are imported when first needed
 _LOADERS = {
@@ -93,22 +94,10 @@ def load_chain(path_or_name: str | Path, **kwargs: Any) -> KinematicChain:
     ``.urdf`` -> :func:`chainspace.from_urdf`, ``.asf`` -> :func:`chainspace.from_asf`, ``.bvh`` ->
     :func:`chainspace.from_bvh`, ``.toml``/``.yaml``/``.yml`` -> :func:`chainspace.from_skeleton_file`.
     A string that is not an existing file and has no path separator is looked up among the shipped
-    descriptions (:func:`list_shipped`). ``kwargs`` go to the loader.
+    descriptions (:func:`list_shipped`), then among the example-robot-data URDFs
+    (:data:`EXAMPLE_ROBOTS`, :func:`example_robot_urdf`). ``kwargs`` go to the loader.
     """
-    if not isinstance(path_or_name, (str, Path)):
-        raise DescriptionError(f"expected a file path or a shipped name, not {type(path_or_name).__name__}")
-    path = Path(path_or_name)
-    if not path.is_file():
-        text = str(path_or_name)
-        if isinstance(path_or_name, str) and "/" not in text and "\\" not in text and text:
-            try:
-                path = shipped_path(text)
-            except DescriptionNotFoundError:
-                if path.suffix.lower() not in _LOADERS:
-                    raise
-                raise DescriptionNotFoundError(f"description file not found: {path}") from None
-        else:
-            raise DescriptionNotFoundError(f"description file not found: {path}")
+    path = description_path(path_or_name)
     suffix = path.suffix.lower()
     if suffix not in _LOADERS:
         raise DescriptionError(
@@ -121,6 +110,31 @@ def load_chain(path_or_name: str | Path, **kwargs: Any) -> KinematicChain:
     except TypeError as exc:
         raise DescriptionError(f"{path}: {loader.__name__} does not take these options: {exc}") from None
     return loader(path, **kwargs)
+
+
+def description_path(path_or_name: str | Path) -> Path:
+    """The file of a description: an existing file, a shipped name (``"milling_arm"``) or an
+    example-robot-data robot (``"ur5"``, :data:`EXAMPLE_ROBOTS`); else :class:`DescriptionNotFoundError`."""
+    if not isinstance(path_or_name, (str, Path)):
+        raise DescriptionError(f"expected a file path or a shipped name, not {type(path_or_name).__name__}")
+    path = Path(path_or_name)
+    if path.is_file():
+        return path
+    text = str(path_or_name)
+    if not (isinstance(path_or_name, str) and "/" not in text and "\\" not in text and text):
+        raise DescriptionNotFoundError(f"description file not found: {path}")
+    try:
+        return shipped_path(text)
+    except DescriptionNotFoundError as exc:
+        if text in EXAMPLE_ROBOTS:
+            try:
+                return example_robot_urdf(text)
+            except ChainspaceError as missing:  # the package or its file is not there: say which
+                raise DescriptionNotFoundError(str(missing)) from None
+        if path.suffix.lower() in _LOADERS:
+            raise DescriptionNotFoundError(f"description file not found: {path}") from None
+        raise DescriptionNotFoundError(f"{exc} Robots of example-robot-data by name: "
+                                       f"{', '.join(EXAMPLE_ROBOTS)}.") from None
 
 
 def _example_robot_data_root() -> Path | None:
