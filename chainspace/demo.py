@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from .errors import OutputExistsError
+from .progress import time_left
 
 __all__ = ["run_demo", "DEMO_FILES", "demo_clip", "cache_dir"]
 
@@ -57,12 +58,14 @@ def cache_dir() -> Path:
 
 def demo_clip(n_frames: int = 300, seed: int = 8, *, size: tuple[int, int] = DEMO_SIZE,
               distance_reaches: float = DEMO_DISTANCE, robot: str = "milling_arm", cache: str | Path | None = None,
-              progress: bool | Callable[[str], None] = False) -> tuple[Path, Any]:
+              progress: bool | Callable[[str], None] = False,
+              count: Callable[[int, int], None] | None = None) -> tuple[Path, Any]:
     """(path of the rendered clip, the trial it films), rendering it into the cache when missing.
 
     The trial: ``synthesize(robot, camera="pinhole", trajectory="milling", seed=seed, ...)`` (the milling
     contour, a static pinhole camera of ``size`` at ``distance_reaches``), its chain the URDF's points
     plus the shipped markers' centres. The clip's truth NPZ sits beside it (:func:`~chainspace.video.render.truth_path`).
+    ``count(done, total)``: the rendering's frame count, as it goes.
     """
     from .io.descriptions import shipped_path
     from .io.urdf import from_urdf
@@ -88,7 +91,8 @@ def demo_clip(n_frames: int = 300, seed: int = 8, *, size: tuple[int, int] = DEM
         _say(progress, f"      (cached clip {clip})")
         return clip, trial
     clip.parent.mkdir(parents=True, exist_ok=True)
-    res = render_trial(trial, clip, markers=mmap, seed=seed, overwrite=True, progress=progress is True)
+    res = render_trial(trial, clip, markers=mmap, seed=seed, overwrite=True,
+                       progress=count if count is not None else progress is True)
     _say(progress, f"      rendered {clip} ({res.seconds_per_frame:.2f} s a frame)")
     return clip, trial
 
@@ -109,11 +113,19 @@ class _Ticker:
                  expected_s: float | None = None) -> None:
         self.progress, self.what, self.every, self.expected_s = progress, what, every, expected_s
         self.t0 = time.perf_counter()
+        self.done, self.total = 0, 0
         self._stop = None
         self._thread = None
 
+    def count(self, done: int, total: int) -> None:
+        """A stage's own count (``progress(done, total)`` of :func:`~chainspace.progress.progress_reporter`):
+        the lines then give it, and the time left at the rate so far."""
+        self.done, self.total = done, total
+
     def line(self) -> str:
         elapsed = time.perf_counter() - self.t0
+        if self.total:
+            return f"      ... {self.what}: {self.done}/{self.total}, {time_left(elapsed, self.done, self.total)}"
         text = f"      ... {self.what}: {elapsed:.0f} s elapsed"
         if self.expected_s:
             left = self.expected_s - elapsed
@@ -190,8 +202,8 @@ def run_demo(out_dir: str | Path, *, overwrite: bool = False, progress: bool | C
     w, h = DEMO_SIZE
     _say(progress, f"[1/6] the video: the milling arm with ArUco markers, {n_frames} frames, {w} x {h}, a static "
                    "pinhole camera (rendered once, then cached)")
-    with _Ticker(progress, f"rendering {n_frames} frames", every=15.0):
-        clip, trial = demo_clip(n_frames, seed, cache=cache, progress=progress)
+    with _Ticker(progress, f"rendering {n_frames} frames", every=15.0) as ticker:
+        clip, trial = demo_clip(n_frames, seed, cache=cache, progress=progress, count=ticker.count)
     timings["render"] = time.perf_counter() - t0
     out.mkdir(parents=True, exist_ok=True)
     files = []

@@ -73,6 +73,15 @@ def print_stages(prefix: str = "", say: Callable[[str], None] | None = None) -> 
         STAGES.propagate = propagate
 
 
+def time_left(elapsed: float, done: int, total: int) -> str:
+    """``"12 s elapsed, about 40 s left"`` for ``done`` of ``total`` steps in ``elapsed`` seconds (the
+    rate so far; no estimate before the first step)."""
+    text = f"{elapsed:.0f} s elapsed"
+    if 0 < done < total:
+        text += f", about {elapsed * (total - done) / done:.0f} s left"
+    return text
+
+
 @contextmanager
 def progress_reporter(progress: bool | Callable[[int, int], None], total: int, label: str, *,
                       unit: str = "frames") -> Iterator[Callable[[int], None]]:
@@ -105,10 +114,12 @@ def progress_reporter(progress: bool | Callable[[int, int], None], total: int, l
         return
     step = max(1, total // 10)
     last = [0]
+    t0 = time.perf_counter()
 
     def plain(done: int) -> None:
         if done - last[0] >= step or (done == total and last[0] != total):
             last[0] = done
-            print(f"{label}: {done}/{total} {unit}", file=sys.stderr, flush=True)
+            print(f"{label}: {done}/{total} {unit}, {time_left(time.perf_counter() - t0, done, total)}",
+                  file=sys.stderr, flush=True)
 
     yield plain

@@ -416,6 +416,24 @@ def test_progress_lines_for_long_stages_are_plain_and_timed():
     assert lines[-1].startswith("      ... fitting 300 frames: done in ")
     with _Ticker(False, "quiet", every=0.01):  # progress=False: no thread, no output
         time.sleep(0.03)
+    lines.clear()
+    with _Ticker(lines.append, "rendering 300 frames", every=0.05) as ticker:  # a stage that counts
+        ticker.count(60, 300)
+        time.sleep(0.12)
+    assert lines[0].startswith("      ... rendering 300 frames: 60/300, 0 s elapsed, about 0 s left"), lines
+
+
+def test_piped_progress_lines_give_counts_and_time_left(capsys, monkeypatch):
+    """A stage's progress on a pipe: plain lines with the count, the time elapsed and the time left."""
+    from chainspace import progress
+
+    clock = iter([0.0, 10.0, 40.0])
+    monkeypatch.setattr(progress.time, "perf_counter", lambda: next(clock))
+    with progress.progress_reporter(True, 4, "tracking") as report:
+        report(1)
+        report(4)
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["tracking: 1/4 frames, 10 s elapsed, about 30 s left", "tracking: 4/4 frames, 40 s elapsed"]
 
 
 def test_track_format_advice_names_the_option(tmp_path):

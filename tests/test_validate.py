@@ -146,3 +146,15 @@ def test_a_fit_of_3d_points_alone_is_judged_on_them(fitted):
     _, fit = fitted
     rep = validate(fit)
     assert "error_3d_pct_reach" in rep.checks and rep.tracks_misfit is None and rep.distance_to_reconstruction_mm is None
+
+
+def test_deviations_that_understate_the_errors_are_called_a_lower_bound(fitted):
+    """With a truth, joints whose true values lie mostly outside the reported deviations (the demo's rendered
+    markers: 0 % within one) get a line saying what the deviations assume; honest ones do not."""
+    t, fit = fitted
+    F, nv = fit.q.shape
+    narrow = type(fit)(**{**fit.__dict__, "q_std": np.full((F, nv), 1e-9)})
+    truth = t.q + np.radians(0.2)  # 0.2 degrees off everywhere, a billionth of a radian reported
+    assert "read them as a lower bound" in validate(narrow, truth).table()
+    wide = type(fit)(**{**fit.__dict__, "q_std": np.full((F, nv), np.radians(1.0))})
+    assert "lower bound" not in validate(wide, truth).table()
