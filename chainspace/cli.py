@@ -492,6 +492,9 @@ def fit(
             raise TrackError("fitting 2D tracks needs --urdf")
         from .reconstruction.pipeline import reconstruct as run
         from .io.tracks import load_tracks
+        from .robot.kinematics import check_fittable
+
+        check_fittable(urdf_path)  # a floating base: said before the reconstruction trips over its world link
 
         if markers is not None:
             kc = fit_chain = _marker_chain(urdf_path, markers, source, format)

@@ -187,6 +187,17 @@ def test_floating_base_is_refused_by_the_fit_naming_the_joint(tmp_path):
         with pytest.raises(DescriptionError, match="joint 'free' is floating.*not supported") as info:
             call()
         assert "drone_arm.urdf" in str(info.value)
+    # the command line says the same before reconstructing the tracks (whose own error named the world
+    # link as an untracked joint)
+    from typer.testing import CliRunner
+
+    from chainspace.cli import app
+    from chainspace.io.tracks import save_tracks
+
+    tracks = tmp_path / "t.csv"
+    save_tracks(tracks, np.zeros((4, 2, 2)) + np.arange(8.0).reshape(4, 2, 1), ["body", "arm"])
+    result = CliRunner().invoke(app, ["fit", str(tracks), "--urdf", str(path), "--out", str(tmp_path / "f")])
+    assert result.exit_code == 2 and "joint 'free' is floating" in result.output and "world" not in result.output
 
 
 # ---------------------------------------------------------------------------- batched kinematics

@@ -474,6 +474,15 @@ def _right(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return (A.reshape(-1, 3) @ B).reshape(A.shape[:-1] + B.shape[1:])
 
 
+def check_fittable(urdf: str | Path) -> None:
+    """Raise :class:`DescriptionError` when the URDF has a joint the fit does not support (a floating
+    base): before a command line spends a reconstruction on it, whose own error would name a symptom
+    (an untracked world link) rather than the cause."""
+    from ..io.urdf import build_model
+
+    _check_supported_joints(build_model(Path(urdf)), urdf)
+
+
 def _check_supported_joints(model, path) -> None:
     """Joint fits know revolute, continuous, prismatic, fixed and mimic joints; say which joint is not."""
     kinds = {"JointModelFreeFlyer": "floating (free-flyer, 6 degrees of freedom)",
