@@ -378,6 +378,14 @@ def test_bone_lengths_robot_from_urdf_apart_from_scale_free_reconstruction():
     assert BONES_NOTE in table and "URDF (metres" in BONES_NOTE and "fixes no scale" in BONES_NOTE
     assert "| bone | fitted robot (URDF) m | robot share % | reconstruction share % (scale-free) |" in table
     assert "| a-b | 1.0000 | 25.0 | 50.0 | +100.0 |" in table
+    assert "not compared" not in table
+    # a bone whose ends lie on links that move against each other (markers on two links) has no one length
+    chain.metadata["variable_bones"] = [("b", "c")]
+    bones = _bone_errors(robot, SimpleNamespace(chain=chain, input_poses=poses, scale=1.0))
+    table = ValidationReport(joints=[], bones=bones, reprojection_rms_px=None, error_3d_mm=None,
+                             error_3d_pct_reach=None, reach_mm=4000.0, thresholds={}, checks={}).table()
+    assert "| b-c | 3.0000 | - | - | - |" in table
+    assert "- not compared (its ends lie on links that move against each other, so no one length): b-c" in table
     assert report.to_dict()["bones_note"] == BONES_NOTE
 
 

@@ -128,6 +128,12 @@ class ValidationReport:
             diff = "-" if b.get("share_error_pct") is None else f"{b['share_error_pct']:+.1f}"
             out.append(f"| {b['name']} | {b['urdf_mm'] / 1000:.4f} | {rob} | {rec} | {diff} |")
         out.append("")
+        why: dict[str, list[str]] = {}
+        for b in self.bones:
+            if b.get("not_compared"):
+                why.setdefault(b["not_compared"], []).append(b["name"])
+        for reason, names in why.items():  # the bones shown as "-", and why
+            out.append(f"- not compared ({reason}, so no one length): {', '.join(names)}")
         rel = [j["name"] for j in self.joints if j.get("status") == "relative to frame 0"]
         amb = [j for j in self.joints if j.get("status") == "ambiguous"]
         if amb:
@@ -346,7 +352,11 @@ def _bone_errors(robot, fit) -> list[dict[str, Any]]:
         # shares of the total over the bones the reconstruction has: scale-free, so comparable
         us = 100 * L / urdf_total if r is not None and urdf_total > 0 else None
         rs = 100 * r / rec_total if r is not None and rec_total > 0 else None
+        why = None if r is not None else ("its ends lie on links that move against each other" if not judged[k] else
+                                          "not in the reconstruction" if rec is None or not np.isfinite(rec[k])
+                                          else "")
         rows.append({"name": f"{a}-{b}", "urdf_mm": 1000 * L, "recovered_mm": None if r is None else 1000 * r,
+                     "not_compared": why,
                      "error_mm": None if r is None else 1000 * (r - L),
                      "error_pct": None if r is None or L < 1e-9 else 100 * (r - L) / L,
                      "urdf_share_pct": us, "reconstruction_share_pct": rs,
