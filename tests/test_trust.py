@@ -356,6 +356,14 @@ def test_relative_joints_are_plotted_relative_to_frame_0(tmp_path, monkeypatch):
     np.testing.assert_allclose(t_line.get_ydata(), f_line.get_ydata(), atol=1e-9)  # the curves agree
     assert t_line.get_ydata()[0] == 0.0
     np.testing.assert_allclose(ax2.get_lines()[0].get_ydata(), np.degrees(truth[:, 1]))  # absolute as before
+    assert "NOT OBSERVABLE" not in ax1.get_ylabel() + ax2.get_ylabel()
+    # a joint not seen at all (held where the fit started it) is labelled so, not drawn as a fitted 0
+    figures.clear()
+    held = SimpleNamespace(**{**fit.__dict__, "observable": np.array([True, False]), "relative": np.array([False, False])})
+    plots.plot_joint_angles(held, truth, tmp_path / "q2.png")
+    ax1, ax2 = [ax for ax in figures[0].axes if ax.get_visible()][:2]
+    assert "NOT OBSERVABLE" in ax2.get_ylabel() and "NOT OBSERVABLE" not in ax1.get_ylabel()
+    assert "fitted (not observable: held)" in [ln.get_label() for ln in ax2.get_lines()]
 
 
 def test_bone_lengths_robot_from_urdf_apart_from_scale_free_reconstruction():

@@ -136,9 +136,11 @@ def plot_joint_angles(fit: Any, truth_q: Any, path: str | os.PathLike, *, fps: f
         if std is not None and np.isfinite(std[:, i]).any():
             band = np.degrees(std[:, i])
             ax.fill_between(t, fitted - band, fitted + band, color="C1", alpha=0.25, lw=0, label="+-1 std")
-        ax.plot(t, fitted, color="C1", lw=1.2, ls="-" if observable[i] else "--", label="fitted" + tag)
+        held = not observable[i] and not rel  # not seen at all: drawn where the fit held it (its rest value)
+        ax.plot(t, fitted, color="C1", lw=1.2, ls="-" if observable[i] else "--",
+                label="fitted" + tag + (" (not observable: held)" if held else ""))
         label = f"{names[i]} (deg)" if not rel else f"{names[i]} (deg,\nrelative to frame 0)"
-        ax.set_ylabel(label + ("\nAMBIGUOUS" if ambiguous[i] else ""))
+        ax.set_ylabel(label + ("\nAMBIGUOUS" if ambiguous[i] else "\nNOT OBSERVABLE" if held else ""))
         if rel:
             ax.legend(loc="best", fontsize="small")
         ax.grid(True, alpha=0.3)
