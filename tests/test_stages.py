@@ -54,6 +54,19 @@ def test_the_perspective_fit_logs_its_stages_in_order(caplog):
                 "robot fit, perspective: the joint angles' standard deviations"]
     found = [next((i for i, m in enumerate(messages) if m.startswith(e)), None) for e in expected]
     assert None not in found and found == sorted(found), messages
+    other = next(m for m in messages if m.startswith("robot fit, perspective: other minima"))
+    assert other.endswith("search 1/5"), other  # a counted stage (its five searches)
+
+
+def test_the_weak_fit_counts_its_smoothed_choice(caplog):
+    """The weak fit's choice with the motion prior, a stage of many seconds, logs its count too."""
+    chain = robot_chain("milling arm")
+    trial = synthesize(chain, n_frames=20, noise_px=1.0, seed=4, camera="static")
+    rec = reconstruct(trial.tracks, chain, seed=4)
+    with caplog.at_level(logging.INFO, logger="chainspace.stages"):
+        fit_joint_angles(rec)
+    messages = [r.getMessage() for r in caplog.records if r.name == "chainspace.stages"]
+    assert any(m.startswith("robot fit: the motion prior, scoring fit 1/") for m in messages), messages
 
 
 def test_the_fit_command_prints_the_stages_when_piped(tmp_path):

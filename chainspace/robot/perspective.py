@@ -431,17 +431,22 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
         step(i)
         fits += first if k == 0 and early else refine_in_full(k)
     contend([])
-    stage("robot fit, perspective: other minima (a searched camera, grafts, twins, windows, turned joints)")
+    # five searches, each a step of the stage's log (a count and the time left: 28 s in the demo)
+    other = stage_steps("robot fit, perspective: other minima (a searched camera, grafts, twins, windows, turned "
+                        "joints), search", 5)
+    other(0)
     searched = _searched_start(robot, fits[0], tr, w, starts[0], K, n_obs, weak_sse)
     if searched is not None:  # one more contender, on the objective like the others
         contend(finish(*searched, starts[0], 0))
     # (the given starts only: a turned start's tails beyond the first joint are its original's)
+    other(1)
     grafted = _grafted(robot, fits[0], given + [r["q"] for r in fits[1:]], tr, w)
     if grafted is not None:
         contend(finish(grafted, fits[0]["view"], fits[0]["start"], 0))
     # the winner's mirror image, facing the camera as it does, and the winner turned about the first joint's
     # axis with the camera turned to match: its twins, which no start need reach (each refitted in full only
     # when a plain fit of it ties with the winner's: a big robot's mirror twin is far off)
+    other(2)
     lead = fits[0]
     mirror = _pinhole_twin(robot, lead["q"], lead["view"], lead["free"])
     var0 = _noise_variance(lead, w)
@@ -455,12 +460,14 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     contend([])
     # the winner's path moved on windows along what the tracks fix least: minima that differ from it on a
     # window only, which no whole-sequence candidate is (a tie then reported, or a lower one the winner)
+    other(3)
     lead = fits[0]
     contend([r for r in _weak_windows(robot, lead, tr, w, fps) if not _same_motion(robot, r["q"], lead["q"])])
     # and its loosest joints turned whole: minima tens of degrees away along them, beyond the windows' reach.
     # A turned fit takes over only where the tracks prefer it beyond the tie tolerance; within it, the one the
     # starts reached stays and the turned one is reported as a tie (among minima within a noise variance of
     # each other, the full ranges' Panda from below, which one is lowest is the noise's choice)
+    other(4)
     turned = [r for r in _loose_turns(robot, fits[0], tr, w) if not any(_same_motion(robot, r["q"], o["q"])
                                                                        for o in fits)]
     clear = fits[0]["objective"] - TIE_VARIANCES * _noise_variance(fits[0], w)

@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections.abc import Callable
 import numpy as np
 
+from ..progress import stage_steps
 from .kinematics import RobotKinematics, _roughness
 from .views import _View, _looks_down
 from .solver import _smooth_lm, _smoothed_objective
@@ -106,7 +107,9 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
     def known(q):
         return any(_same_motion(robot, q, o["q"]) for _, o in scored)
 
-    for r in results:
+    step = stage_steps("robot fit: the motion prior, scoring fit", len(results))  # 14 s for a UR5's four
+    for k, r in enumerate(results):
+        step(k)
         near = r["sse"] <= 1.1 * best_sse + TIE_VARIANCES * sigma ** 2
         if near and not known(r["q"]):
             score(r, r["out"][0], r["out"][1])  # else a poor fit of the tracks, or one already scored
