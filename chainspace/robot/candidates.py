@@ -362,3 +362,113 @@ def _turned_twins(robot: RobotKinematics, q: np.ndarray, view) -> list:
             continue  # every tracked point where it was: the same motion up to the gauge
         out.append((qt, v))
     return out
+
+
+# the turns about the base's line tried: of the motion as it is (the half turn, a twin of the whole arm
+# about the line, and the quarter turns either way as further starts), and of its depth mirror turned
+# back onto the base points (either of the two turns that do it: the half turn about the bisector of
+# the line and its mirror image, or that and a half turn about the line)
+STATIC_TURNS_DEG = (90.0, 180.0, 270.0)
+STATIC_MIRROR_TURNS_DEG = (0.0, 180.0)
+
+
+def _static_line_targets(robot, pos: np.ndarray, R0: np.ndarray, static: np.ndarray) -> list[np.ndarray]:
+    """3D targets (F, J, 3), base frame, that a weak-perspective camera turned about the line of the
+    ``static`` (J,) base points sees as it sees ``pos`` (F, J, 3) through rotation R0 (base to camera):
+    (a) pos turned about that line (:data:`STATIC_TURNS_DEG`); (b) pos mirrored in depth
+    (the camera's third axis, about the base points' centre), as is or with the part beyond one link
+    mirrored back (a depth flip of the mirrored motion: the base side mirrored, the far side carried
+    along), then turned so that the base points are where they are (a half turn about the bisector of
+    their line and its mirror image) and about their line (:data:`STATIC_MIRROR_TURNS_DEG`). Every tracked
+    point projects where it did; only the base points are where the robot has them, the rest is a start
+    for IK. [] when the base points do not lie on one line."""
+    from scipy.spatial.transform import Rotation
+
+    sp = pos[0, static]
+    size = max(float(np.ptp(pos.reshape(-1, 3), axis=0).max()), 1e-9)
+    if len(sp) < 2:
+        return []
+    c0 = sp.mean(0)
+    sv = np.linalg.svd(sp - c0, compute_uv=False)
+    if sv[0] < 1e-3 * size or (len(sv) > 1 and sv[1] > 1e-6 * size):
+        return []  # one point, or points that span a plane: no single line
+    axis = np.linalg.svd(sp - c0)[2][0]
+
+    def turns(degrees):
+        return [Rotation.from_rotvec(np.radians(t) * axis).as_matrix() for t in degrees]
+
+    M = R0.T @ np.diag([1.0, 1.0, -1.0]) @ R0  # the depth mirror, base frame
+    b = axis + M @ axis
+    if np.linalg.norm(b) < 1e-9:  # the line along the depth axis: its mirror image is itself, reversed
+        b = np.cross(axis, np.eye(3)[np.argmin(np.abs(axis))])
+    G0 = Rotation.from_rotvec(np.pi * b / np.linalg.norm(b)).as_matrix()  # takes the mirrored line onto the line
+    F = len(pos)
+    n = np.broadcast_to(R0[2], (F, 3))
+    index = {name: i for i, name in enumerate(robot.chain.joints)}
+    Pm = (pos - c0) @ M.T + c0
+    mirrored, seen_sets = [Pm], []
+    for k, (parent, _) in enumerate(robot.chain.bones):
+        beyond = robot.chain.D[k] != 0
+        if beyond.sum() < 2 or static[beyond].any() or any((beyond == s).all() for s in seen_sets):
+            continue  # a leaf (its own depth flip is the fit's), or a part already tried
+        seen_sets.append(beyond)
+        mirrored.append(_mirrored_beyond(Pm, beyond, index[parent], n)[0])
+    out = [(pos - c0) @ T.T + c0 for T in turns(STATIC_TURNS_DEG)]
+    out += [(P - c0) @ (T @ G0).T + c0 for P in mirrored for T in turns(STATIC_MIRROR_TURNS_DEG)]
+    return out
+
+
+def _static_line_starts(robot, r: dict, tracks: np.ndarray, w: np.ndarray, tie_variances: float,
+                        keep: int = 2) -> list[tuple[np.ndarray, object]]:
+    """Starts (q (F, nq), weak-perspective view) for other basins that the camera's freedom about the
+    base's tracked points allows: where the tracked points no joint moves lie on one line (two base
+    points, say) and no joint turns about it (no gauge direction), they fix the camera only up to a turn
+    about that line, or (weak perspective) a turn that mirrors them in depth. Per target of
+    :func:`_static_line_targets` (the fit ``r``'s 3D motion turned about the line, or mirrored in depth
+    with the part beyond one link carried along and turned back onto the base points), the robot is
+    fitted to it along the sequence (IK from the rest pose's side, warm-started), the camera to the
+    result in closed form, then everything to the tracks (a few steps, no prior). Starts whose squared
+    residuals are no more than ``tie_variances`` noise variances above ``r``'s (or below), and that are
+    not ``r``'s own motion, are returned, best first, at most ``keep``.
+
+    Why: TALOS's left arm hangs from two tracked base points (arm_left_1_link, arm_left_2_link) whose
+    line is no joint's axis. Weak camera, full ranges, 30 frames: seed 0 reported the whole arm turned
+    174 degrees about that line (arm_left_2 38, arm_left_3 175 degrees off; every tracked point within
+    2 mm of the truth's in the camera's frame), 30 noise variances above the true motion's basin; seed 2
+    reported the base line and upper arm mirrored in depth with the forearm carried along (four joints
+    2-40 degrees off, as well fitted as the truth). Neither the fit's mirrors and depth flips nor IK on
+    its own 3D points reach those basins (their points lie 0.2-0.8 m from the truth's in the base
+    frame: the camera differs)."""
+    from .starts import _sequential_ik
+
+    q, view, rn, pos = r["out"][0], r["out"][1], r["out"][2], r["out"][3]
+    gauge, free = r["gauge"], r["free"]
+    if np.asarray(gauge).any() or getattr(view, "per_frame", False):
+        return []
+    F = len(q)
+    seen = (w > 0).any(0)
+    jac = robot.jacobians(q[:1])[1][0]  # (J, 3, nv)
+    static = seen & (np.linalg.norm(jac, axis=(1, 2)) < 1e-9)
+    targets = _static_line_targets(robot, pos, view.R[0], static)
+    if not targets:
+        return []
+    sse0 = float((w * rn ** 2).sum())
+    var = sse0 / max(2 * int((w > 0).sum()), 1)
+    ones3, ident = np.ones(pos.shape[:2]), _View.identity(F)
+    turn = np.array([True, True, True, False, True, True, True])  # rotation, (not scale), translation
+    found: list[tuple[float, np.ndarray, object]] = []
+    for X in targets:
+        qa = _sequential_ik(robot, X, ones3, ident, free, robot.q_seed, gauge)
+        # the turn is only a start: the robot fitted to the target turned as a whole (one turn and shift for
+        # the sequence, the base points holding it to the turn about their line)
+        qa = _sequence_lm(robot, qa, X, ones3, ident, free, turn, 30, 1e-8, None)[0]
+        va = _camera_view(robot.positions(qa), tracks, w, False)
+        qa, va, rna, _, _, _ = _sequence_lm(robot, qa, tracks, w, va, free, np.ones(va.n_params, bool), 30, 1e-8,
+                                            r["delta"])
+        s = float((w * rna ** 2).sum())
+        if s - sse0 > tie_variances * var or _same_motion(robot, qa, q) or \
+                any(_same_motion(robot, qa, o) for _, o, _ in found):
+            continue
+        found.append((s, qa, va))
+    found.sort(key=lambda x: x[0])
+    return [(qa, va) for _, qa, va in found[:keep]]

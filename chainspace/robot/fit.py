@@ -193,7 +193,8 @@ from .views import _affine_camera, _align, _camera_view, _looks_down, similarity
 from .solver import _huber, _motion_prior, _noise_sigma, _rms_per_frame, _robust_scale, _sequence_lm
 from .starts import _fit_3d, _initial_camera, _sequential_ik
 from .observability import _fill_unseen, _gauge_directions, _hold, _notes, _structural, _unseen
-from .candidates import FACE_ON_DEG, TIE_VARIANCES, _same_motion, _face_on_planes, _frame_ranges, _nearest_rest_branch, _viterbi_reanchored
+from .candidates import (FACE_ON_DEG, TIE_VARIANCES, _face_on_planes, _frame_ranges, _nearest_rest_branch,
+                         _same_motion, _static_line_starts, _viterbi_reanchored)
 from .selection import _most_probable, _prefer_rest, view_side_valid
 from .uncertainty import CAMERA_MISFIT_RATIO, assess_fit, camera_misfit, track_jitter
 
@@ -595,6 +596,16 @@ def fit_joint_angles(
                       len(reflected))
                 alts = [refine_2d(reflection(r0, M)) for M in (depth_mirror(r0), np.diag([1.0, -1.0, 1.0]))]
                 results, mirror_tied = order(results + alts)
+            if not per_frame:
+                # the camera's freedom about the base's line of tracked points: the best motion turned about
+                # it, or mirrored in depth (whole, or up to one link) and turned back onto the base points
+                # (candidates._static_line_starts); the basins that fit as well or better, refined as the rest
+                t_s = time.perf_counter()
+                turned = [refine_2d(dict(results[0]["c"], q=q_s, pos=robot.positions(q_s), camera0=v_s))
+                          for q_s, v_s in _static_line_starts(robot, results[0], tracks, w2, TIE_VARIANCES)]
+                if turned:
+                    results, mirror_tied = order(results + turned)
+                timings["static_line"] = time.perf_counter() - t_s
         r = results[0]
         timings["refine_candidates"] = time.perf_counter() - t1
         sigma = _noise_sigma(r["out"][2], w2)
