@@ -11,7 +11,7 @@ import numpy as np
 from .kinematics import RobotKinematics, _gauge_q, _held_q, _random_q, _seeded, _wrapped
 from .views import _View, _camera_view
 from .solver import _sequence_lm
-from .observability import _hold
+from .observability import _hold, _moves
 
 # The tie policy (one for every rule of chainspace.robot.fit; see "Ambiguities" there):
 # * candidate: a fitted motion, a dict with at least ``q`` (F, nq) and its ``out`` of the solver;
@@ -389,10 +389,10 @@ def _static_line_targets(robot, pos: np.ndarray, R0: np.ndarray, static: np.ndar
     if len(sp) < 2:
         return []
     c0 = sp.mean(0)
-    sv = np.linalg.svd(sp - c0, compute_uv=False)
+    _, sv, vt = np.linalg.svd(sp - c0)
     if sv[0] < 1e-3 * size or (len(sv) > 1 and sv[1] > 1e-6 * size):
         return []  # one point, or points that span a plane: no single line
-    axis = np.linalg.svd(sp - c0)[2][0]
+    axis = vt[0]
 
     def turns(degrees):
         return [Rotation.from_rotvec(np.radians(t) * axis).as_matrix() for t in degrees]
@@ -441,19 +441,16 @@ def _static_line_starts(robot, r: dict, tracks: np.ndarray, w: np.ndarray, tie_v
     frame: the camera differs)."""
     from .starts import _sequential_ik
 
-    q, view, rn, pos = r["out"][0], r["out"][1], r["out"][2], r["out"][3]
+    q, view, pos = r["out"][0], r["out"][1], r["out"][3]
     gauge, free = r["gauge"], r["free"]
     if np.asarray(gauge).any() or getattr(view, "per_frame", False):
         return []
     F = len(q)
-    seen = (w > 0).any(0)
-    jac = robot.jacobians(q[:1])[1][0]  # (J, 3, nv)
-    static = seen & (np.linalg.norm(jac, axis=(1, 2)) < 1e-9)
+    static = (w > 0).any(0) & ~_moves(robot).any(1)  # tracked points that no joint moves
     targets = _static_line_targets(robot, pos, view.R[0], static)
     if not targets:
         return []
-    sse0 = float((w * rn ** 2).sum())
-    var = sse0 / max(2 * int((w > 0).sum()), 1)
+    sse0, var = r["sse"], r["sse"] / max(r["n_obs"], 1)  # the refined fit's, as its tie test has them
     ones3, ident = np.ones(pos.shape[:2]), _View.identity(F)
     turn = np.array([True, True, True, False, True, True, True])  # rotation, (not scale), translation
     found: list[tuple[float, np.ndarray, object]] = []

@@ -192,7 +192,7 @@ from .result import JointFit
 from .views import _affine_camera, _align, _camera_view, _looks_down, similarity_align
 from .solver import _huber, _motion_prior, _noise_sigma, _rms_per_frame, _robust_scale, _sequence_lm
 from .starts import _fit_3d, _initial_camera, _sequential_ik
-from .observability import _fill_unseen, _gauge_directions, _hold, _notes, _structural, _unseen
+from .observability import _fill_unseen, _gauge_directions, _hold, _notes, _structural, _unseen, _weights
 from .candidates import (FACE_ON_DEG, TIE_VARIANCES, _face_on_planes, _frame_ranges, _nearest_rest_branch,
                          _same_motion, _static_line_starts, _viterbi_reanchored)
 from .selection import _most_probable, _prefer_rest, view_side_valid
@@ -399,7 +399,7 @@ def fit_joint_angles(
     robot = RobotKinematics(urdf, chain)
     F = len(poses)
     per_frame = camera == "per-frame"
-    w3 = np.isfinite(poses).all(-1).astype(float) * (1.0 if confidence is None else confidence)
+    w3 = _weights(poses, confidence)
     if not (w3 > 0).any():
         raise TrackError("no point of any frame is usable (all NaN or zero confidence)")
     Xz = np.nan_to_num(poses)
@@ -442,7 +442,7 @@ def fit_joint_angles(
     converged = best["conv"]
     if refine and tracks is not None:
         t1 = time.perf_counter()
-        w2 = np.isfinite(tracks).all(-1).astype(float) * (1.0 if confidence is None else confidence)
+        w2 = _weights(tracks, confidence)
         if (w2 > 0).sum() < 6:
             raise TrackError(f"the tracks have {int((w2 > 0).sum())} usable points; the camera needs at least 6")
         # image-size tolerance for exact data: a thousandth of the tracks' extent (0.8 px at 800 px)
@@ -745,7 +745,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
                                 _assess=cam is None)
     robot = weak.kinematics()
     weak_msg = weak.message.removeprefix("the solver stopped before it converged; ")
-    w2 = np.isfinite(tracks_u).all(-1).astype(float) * (1.0 if confidence is None else confidence)
+    w2 = _weights(tracks_u, confidence)
     weak_sse = float(np.nansum(weak.residual_px ** 2 * w2.sum(1)))
     distinct: list = []
     for st in starts:  # the weak fit's winner and its distinct alternatives (mirror images, flips)
@@ -777,7 +777,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     q, pos_base = best["q"], best["pos"]
     residual_px = _rms_per_frame(best["rn"], w2)
     cams, ts2 = view.weak_approximation(pos_base)
-    w3 = np.isfinite(poses).all(-1).astype(float) * (1.0 if confidence is None else confidence)
+    w3 = _weights(poses, confidence)
     if transform == "none":
         s, R, t = 1.0, np.eye(3), np.zeros(3)
     else:

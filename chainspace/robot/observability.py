@@ -30,14 +30,24 @@ def _probe_q(robot: RobotKinematics, rng: np.random.Generator) -> np.ndarray:
     return robot.clip(robot.from_angles(rng.uniform(lo, hi, (3, robot.nv))))
 
 
-def _unseen(robot: RobotKinematics, w: np.ndarray, seed: int = 0) -> np.ndarray:
-    """(F, nv) directions that move no point seen in that frame (w (F, J) > 0): the data say nothing
-    about them there, so they are held and later interpolated from the neighbouring frames."""
+def _weights(x: np.ndarray, confidence) -> np.ndarray:
+    """(F, J) weights of observed points x (F, J, D): their confidence (1 where None) where finite, else 0."""
+    return np.isfinite(x).all(-1).astype(float) * (1.0 if confidence is None else confidence)
+
+
+def _moves(robot: RobotKinematics, seed: int = 0) -> np.ndarray:
+    """(J, nv) which directions move which of the chain's points, from the structure alone (at a few
+    random configurations: a point on a joint's axis in one pose is not taken for one it never leaves)."""
     qs = _probe_q(robot, np.random.default_rng(seed))
     pos, jac = robot.jacobians(qs)
     ext = max(np.linalg.norm(pos - pos.mean(1, keepdims=True), axis=-1).max(), 1e-9)
-    moves = np.linalg.norm(jac, axis=2).max(0) > 1e-9 * ext  # (J, nv) structural support
-    return ~((w > 0).astype(float) @ moves.astype(float) > 0)
+    return np.linalg.norm(jac, axis=2).max(0) > 1e-9 * ext
+
+
+def _unseen(robot: RobotKinematics, w: np.ndarray, seed: int = 0) -> np.ndarray:
+    """(F, nv) directions that move no point seen in that frame (w (F, J) > 0): the data say nothing
+    about them there, so they are held and later interpolated from the neighbouring frames."""
+    return ~((w > 0).astype(float) @ _moves(robot, seed).astype(float) > 0)
 
 
 def _fill_unseen(robot: RobotKinematics, q: np.ndarray, unseen: np.ndarray) -> np.ndarray:

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DescriptionError, TrackError
+from .observability import _weights
 from .result import joint_flags, joint_reasons
 from .uncertainty import CAMERA_MISFIT_RATIO, camera_misfit, track_jitter
 
@@ -148,7 +149,8 @@ class ValidationReport:
         if rel:
             out.append(f"- {', '.join(rel)}: seen only relative to frame 0 (a turn of the camera looks the same), "
                        "so compared, and plotted, as the change since frame 0")
-        inside = [j["within_1_std_pct"] for j in self.joints if j.get("judged") and j.get("within_1_std_pct") is not None]
+        inside = [j["within_1_std_pct"] for j in self.joints
+                  if j.get("judged") and j.get("within_1_std_pct") is not None]
         if inside and np.mean(inside) < STD_HONEST_PCT:
             out.append(f"- only {np.mean(inside):.0f} % of the true values lie within one reported standard deviation "
                        "(about 68 % if it held): the deviations assume independent pixel noise of the size the fit "
@@ -160,8 +162,8 @@ class ValidationReport:
             out.append(f"- 3D error of the fitted robot: {self.error_3d_mm:.2f} mm "
                        f"({self.error_3d_pct_reach:.3f} % of the {self.reach_mm:.0f} mm reach)")
         if self.distance_to_reconstruction_mm is not None:
-            out.append(f"- no truth given: the fitted robot lies {self.distance_to_reconstruction_mm:.1f} mm (mean) from "
-                       "the monocular reconstruction, which has errors of its own (not judged)")
+            out.append(f"- no truth given: the fitted robot lies {self.distance_to_reconstruction_mm:.1f} mm (mean) "
+                       "from the monocular reconstruction, which has errors of its own (not judged)")
         if self.tracks_misfit is not None:
             out.append(f"- tracks_misfit {self.tracks_misfit:.2f}: the typical tracked point's residual over what "
                        "the tracks' own jitter allows a right fit (about 0.9 when the fit explains the tracks)")
@@ -279,7 +281,7 @@ def _tracks_misfit(fit: Any) -> float | None:
     if seen is None:
         return None
     tracks = np.asarray(fit.tracks, float)
-    w = np.isfinite(tracks).all(-1) * (1.0 if fit.confidence is None else np.asarray(fit.confidence, float))
+    w = _weights(tracks, None if fit.confidence is None else np.asarray(fit.confidence, float))
     ratio = camera_misfit(np.linalg.norm(seen - np.nan_to_num(tracks), axis=-1), w, track_jitter(tracks, w))[0]
     return float(ratio) if np.isfinite(ratio) else None
 
