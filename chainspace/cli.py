@@ -9,7 +9,6 @@ existing file unless given ``--overwrite``, and writes each file atomically.
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import sys
 import time
@@ -86,7 +85,7 @@ _SHELL_ADVICE = (
     ("pass overwrite=True to replace it", "use --overwrite to replace it"),
     ("pass overwrite=True", "use --overwrite"),
     ("drop it with chain.subset(...) or provide its track",
-     "remove it from the chain description (or give its track)"),
+     "leave it out with --link (name every point to keep) or give its track"),
     ("pass urdf=PATH or a chain made by chainspace.from_urdf", "give --urdf"),
     ("pass urdf=PATH", "give --urdf"),
     ("pass format= one of", "give --format, one of"),
@@ -96,6 +95,7 @@ _SHELL_ADVICE = (
     ("(extra_frames)", "(--extra-frame)"),
     ("an extra frame: extra_frames=)", "an extra frame: --extra-frame NAME=LINK:x,y,z)"),
     ("(fit.alternatives)", "(alternatives in joint_angles.npz; drawn grey in the joint plots)"),
+    ("(RMS over the frames, fit.q_std)", "(RMS over the frames; per frame: q_std in joint_angles.npz)"),
     ("the camera-side rule (view_from)", "the camera-side rule (--view-from)"),
 )
 
@@ -165,6 +165,11 @@ ExtraFrames = Annotated[Optional[list[str]], typer.Option(
     "--extra-frame", metavar="NAME=LINK:x,y,z",
     help="A tracked point fixed to a URDF link, offset in that link's frame in metres (a tool tip; "
          "the way to make the first joint or a planar tool observable). Repeatable.")]
+
+Links = Annotated[Optional[list[str]], typer.Option(
+    "--link", metavar="NAME",
+    help="Track only these points of the chain, in this order (a URDF's links or extra frames, a skeleton's "
+         "joints); each hangs from its nearest kept ancestor. Repeatable.")]
 
 
 def _status(message: str) -> Any:
@@ -374,6 +379,7 @@ def reconstruct(
     html: Annotated[Optional[Path], typer.Option(help="Also write a standalone HTML viewer.")] = None,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
     extra_frame: ExtraFrames = None,
+    link: Links = None,
     markers: Markers = None,
     overwrite: Overwrite = False,
 ) -> None:
@@ -382,7 +388,6 @@ def reconstruct(
     Writes reconstruction.npz (all arrays), reconstruction.csv (frame,joint,x,y,z in metres) and
     reconstruction.json (convergence, errors, timings) into --out. Exit code 1 if it did not converge.
     """
-    from .io.descriptions import load_chain
     from .reconstruction.pipeline import reconstruct as run
     from .io.results import save_results
     from .io.tracks import load_tracks
@@ -396,9 +401,10 @@ def reconstruct(
     _check_outputs([out / f"reconstruction.{x}" for x in ("npz", "csv", "json")] + [bvh, html], overwrite)
     intrinsics_kw = _intrinsics_kwargs(run, camera, "reconstruct")
     if markers is not None:
+        _no_links_with_markers(link)
         kc = _marker_chain(_urdf_path(chain), markers, tracks, format)
     else:
-        kc = load_chain(chain, **_extra_frame_options(chain, extras))
+        kc = _load_chain(chain, extras, link)
     W, conf, _ = load_tracks(tracks, chain=kc, format=format, image_size=image_size)
     X0 = None if init_pose is None else _load_array(init_pose, "initial pose", ("init_pose", "pose"))
     X_true = _load_poses(truth, kc)
@@ -437,6 +443,7 @@ def fit(
     fps: Annotated[float, typer.Option(help="Frame rate of the motion (the fit's motion prior and the "
                                             "viewer).")] = 30.0,
     extra_frame: ExtraFrames = None,
+    link: Links = None,
     markers: Markers = None,
     perspective: Annotated[bool, typer.Option(
         "--perspective", help="Fit a pinhole camera even without --intrinsics/--fov/--image-size: focal "
@@ -457,7 +464,6 @@ def fit(
     perspective; --image-size alone has the focal length estimated, --perspective the focal length
     and the principal point. Exit code 1 if some frames did not converge.
     """
-    from .io.descriptions import load_chain
     from .robot.fit import fit_joint_angles
     from .io.results import load_results, save_results
 
@@ -477,9 +483,10 @@ def fit(
         rec = load_results(source)
         if not hasattr(rec, "poses"):
             raise TrackError(f"{source}: this is a joint fit, not a reconstruction")
-        if markers is not None:
-            raise TrackError(f"--markers goes with tracks; {source} is a reconstruction, which carries its chain "
-                             "(give --markers to 'chainspace reconstruct', or fit the tracks file)")
+        for option, given in (("--markers", markers is not None), ("--link", bool(link))):
+            if given:
+                raise TrackError(f"{option} goes with tracks; {source} is a reconstruction, which carries its chain "
+                                 f"(give {option} to 'chainspace reconstruct', or fit the tracks file)")
         if extras:
             from .io.urdf import from_urdf
 
@@ -497,9 +504,10 @@ def fit(
         check_fittable(urdf_path)  # a floating base: said before the reconstruction trips over its world link
 
         if markers is not None:
+            _no_links_with_markers(link)
             kc = fit_chain = _marker_chain(urdf_path, markers, source, format)
         else:
-            kc = load_chain(urdf_path, **_extra_frame_options(urdf_path, extras))
+            kc = _load_chain(urdf_path, extras, link)
         W, conf, _ = load_tracks(source, chain=kc, format=format)
         with _status(f"reconstructing {W.shape[0]} frames of {kc.name}"):
             rec = run(W, kc, confidence=conf, **_intrinsics_kwargs(run, pinhole, "reconstruct"))
@@ -522,6 +530,11 @@ def fit(
                     EXIT_NOT_GOOD)
 
 
+def _no_links_with_markers(links: list[str] | None) -> None:
+    if links:
+        raise TrackError("--link and --markers: the marker map names the tracked points (leave out --link)")
+
+
 def _marker_chain(urdf: str | Path, markers: str, tracks: Path, format: str | None) -> Any:
     """The chain of the markers of a marker map that a tracks file names (each an extra frame of its link)."""
     from .io.tracks import load_tracks
@@ -539,19 +552,18 @@ def _frustum(camera: Any) -> dict[str, Any]:
     return {} if camera is None or camera.image_size is None else {"camera": camera}
 
 
-def _extra_frame_options(chain: str | Path, extras: dict | None) -> dict[str, Any]:
-    """``{"extra_frames": extras}`` for a URDF chain; extra frames on another chain are bad usage."""
-    if not extras:
-        return {}
-    from .io.descriptions import shipped_path
+def _load_chain(chain: str | Path, extras: dict | None, links: list[str] | None) -> Any:
+    """The chain a command tracks: the description (a file or a name), with the --extra-frame points
+    (a URDF's only) and cut to the --link points, in their order."""
+    from .io.descriptions import description_path, load_chain
 
-    p = Path(chain)
-    if not p.is_file() and "/" not in str(chain):
-        with contextlib.suppress(ChainspaceError):
-            p = shipped_path(str(chain))
-    if p.suffix.lower() != ".urdf":
+    urdf = description_path(chain).suffix.lower() == ".urdf"
+    if extras and not urdf:
         raise TrackError(f"--extra-frame needs a URDF chain; {chain} is not a .urdf")
-    return {"extra_frames": extras}
+    if not urdf:
+        kc = load_chain(chain)
+        return kc.subset(links) if links else kc
+    return load_chain(chain, **({"extra_frames": extras} if extras else {}), **({"links": links} if links else {}))
 
 
 def _urdf_path(urdf: str) -> str:
@@ -639,7 +651,8 @@ def view(
     truth: Annotated[Optional[Path], typer.Option(help="True poses (F, J, 3) m, .npy, shown beside.")] = None,
     reconstruction: Annotated[Optional[Path], typer.Option(help="With a joint fit: the reconstruction to "
                                                                 "draw over the robot.")] = None,
-    fps: Annotated[float, typer.Option(help="Playback frame rate.")] = 30.0,
+    fps: Annotated[Optional[float], typer.Option(help="Playback frame rate; default a joint fit's own (the "
+                                                      "--fps it was fitted with), else 30.")] = None,
     intrinsics: Intrinsics = None,
     fov: Fov = None,
     image_size: ImageSize = None,
@@ -863,7 +876,7 @@ def _demo_extras(out: Path, summary: dict, overwrite: bool) -> list[Path]:
         written.append(write_html(out / "viewer.html", rec, fit=fitted, truth=truth, overwrite=overwrite))
         written.append(plot_joint_angles(fitted, truth_q, out / "joint_angles.png", overwrite=overwrite))
     if rec is not None and getattr(rec, "history", None):
-        written.append(plot_convergence(rec, out / "convergence.png", overwrite=overwrite))
+        written.append(plot_convergence(rec, out / "convergence.png", fit=fitted, overwrite=overwrite))
     if report is not None:
         written.append(plot_joint_errors(report, out / "joint_errors.png", overwrite=overwrite))
     return written

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from chainspace.errors import OutputExistsError, TrackError
-from chainspace.view.plots import plot_convergence, plot_error_sweep, plot_joint_angles, plot_joint_errors
+from chainspace.view.plots import convergence_notes, plot_convergence, plot_error_sweep, plot_joint_angles, plot_joint_errors
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -30,6 +30,24 @@ def test_convergence(tmp_path, kind):
     _check(plot_convergence(rec, tmp_path / f"c.{kind}"), kind)
     with pytest.raises(OutputExistsError):
         plot_convergence(rec, tmp_path / f"c.{kind}")
+
+
+def test_convergence_says_what_its_curves_are(tmp_path):
+    """The refinement's reprojection may rise above the KCS stage's (it trades it for constant bones): the
+    plot draws its objective and says which stage was kept on what score, and the robot fit's level."""
+    rec = SimpleNamespace(history={"kcs": {"reprojection": [40.0, 1.0, 0.2]},
+                                   "refine": {"reprojection": [1.1, 1.3, 1.3], "objective": [5.0, 2.0, 1.0, 0.9]},
+                                   "selection": {"kcs": [0.0229, 0.0007, 0.0222], "refine": [0.0081, 0.0074, 0.0007],
+                                                 "chosen": ["refine"]}})
+    fit = SimpleNamespace(residual_px=np.array([1.0, 2.0, np.nan]), intrinsics=object())
+    notes = " ".join(convergence_notes(rec, fit))
+    assert "Kept: refine (track score 0.0081 = reprojection 0.0074 + bone-length variation 0.0007" in notes
+    assert "kcs: 0.0229 = 0.0007 + 0.0222" in notes
+    assert "Robot fit: 1.58 px RMS through its pinhole camera" in notes  # sqrt((1 + 4) / 2)
+    assert "can rise while the bones settle" in notes
+    _check(plot_convergence(rec, tmp_path / "c.png", fit=fit), "png")
+    assert "Robot fit" not in " ".join(convergence_notes(rec))
+    assert "weak-perspective cameras" not in " ".join(convergence_notes(SimpleNamespace(history={"perspective": {}})))
 
 
 def test_convergence_without_history(tmp_path):

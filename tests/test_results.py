@@ -12,6 +12,7 @@ import pytest
 from chainspace.chain import KinematicChain
 from chainspace.errors import ChainspaceError, OutputExistsError
 from chainspace.io.results import atomic_write, load_results, save_results
+from chainspace.robot.result import playback_fps
 
 
 def _chain() -> KinematicChain:
@@ -94,7 +95,8 @@ def test_save_joint_fit(tmp_path):
                           observable=np.array([True, False]), positions=np.zeros((F, 3, 3)),
                           residual_3d=np.full(F, 0.002), residual_px=None, converged=np.ones(F, bool), scale=1.0,
                           rotation=np.eye(3), translation=np.zeros(3), cameras=None, translations_2d=None,
-                          chain=_chain().with_rest_pose(np.eye(3)), urdf_path="arm.urdf", message="ok", n_iter=3)
+                          chain=_chain().with_rest_pose(np.eye(3)), urdf_path="arm.urdf", message="ok", n_iter=3,
+                          fps=25.0)
     fit.chain.metadata.update(q_rest=np.zeros(2), extra_frames={"tip": ("b", np.array([0.0, 0.0, 0.1]))})
     save_results(fit, tmp_path / "fit")
     header, *rows = (tmp_path / "fit" / "joint_angles.csv").read_text().splitlines()
@@ -105,6 +107,9 @@ def test_save_joint_fit(tmp_path):
     assert summary["converged_fraction"] == 1.0
     back = load_results(tmp_path / "fit" / "joint_angles.npz")
     assert back.joint_names == ["j1", "j2"] and back.urdf_path == "arm.urdf" and back.n_iter == 3
+    # the frame rate the fit assumed plays it back (the plots' time axis, the viewer), unless one is given
+    assert summary["fps"] == back.fps == 25.0 and playback_fps(back) == 25.0 and playback_fps(back, 60) == 60.0
+    assert playback_fps(SimpleNamespace(fps=None)) == playback_fps(None) == 30.0
     np.testing.assert_allclose(back.q, fit.q)
     np.testing.assert_array_equal(back.observable, fit.observable)
     np.testing.assert_allclose(back.chain.rest_pose, np.eye(3))

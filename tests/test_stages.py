@@ -55,7 +55,7 @@ def test_the_perspective_fit_logs_its_stages_in_order(caplog):
     found = [next((i for i, m in enumerate(messages) if m.startswith(e)), None) for e in expected]
     assert None not in found and found == sorted(found), messages
     other = next(m for m in messages if m.startswith("robot fit, perspective: other minima"))
-    assert other.endswith("search 1/5"), other  # a counted stage (its five searches)
+    assert other.endswith("search 1/6"), other  # a counted stage (its six searches)
 
 
 def test_the_weak_fit_counts_its_smoothed_choice(caplog):

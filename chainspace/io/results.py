@@ -238,6 +238,7 @@ def _fit_summary(fit: Any) -> dict[str, Any]:
         "kind": "joint_fit",
         "urdf_path": getattr(fit, "urdf_path", None),
         "n_frames": int(q.shape[0]),
+        "fps": getattr(fit, "fps", None),
         "joint_names": list(fit.joint_names),
         "observable": _array_or_none(getattr(fit, "observable", None)),
         "converged_fraction": float(conv.mean()) if conv.size else None,
@@ -268,7 +269,7 @@ def _fit_summary(fit: Any) -> dict[str, Any]:
                             "relative_to_frame_0 are seen only relative to frame 0",
                   "positions": "the reconstruction's units", "residual_3d_mm": "mm on the robot (URDF scale)",
                   "residual_3d_reconstruction_units": "the reconstruction's units (scale-free)",
-                  "residual_px": "px", "noise_px": "px per image coordinate",
+                  "residual_px": "px", "noise_px": "px per image coordinate", "fps": "frames per second",
                   "q_std": "rad (revolute, continuous) or m (prismatic), per frame and joint; NaN where held",
                   "alternatives": "other motions that fit as well; score in noise variances above the best"},
     }
@@ -280,7 +281,7 @@ _ARRAY_FIELDS = {
     "joint_fit": ("q", "joint_names", "observable", "positions", "residual_3d", "residual_px", "converged",
                   "scale", "rotation", "translation", "cameras", "translations_2d", "urdf_path", "message",
                   "n_iter", "intrinsics", "camera_pose", "focal_px", "focal_std_px", "q_std", "noise_px",
-                  "alternatives", "ambiguous", "joint_reasons"),
+                  "alternatives", "ambiguous", "joint_reasons", "fps"),
 }
 _JSON_FIELDS = ("history", "timings")  # dicts: kept in the summary JSON inside the NPZ
 

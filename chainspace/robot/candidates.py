@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 
 from .kinematics import RobotKinematics, _gauge_q, _held_q, _random_q, _seeded, _wrapped
-from .views import _View, _camera_view
+from .views import _PinholeView, _View, _camera_view
 from .solver import _sequence_lm
 from .observability import _hold, _moves
 
@@ -372,7 +372,8 @@ STATIC_TURNS_DEG = (90.0, 180.0, 270.0)
 STATIC_MIRROR_TURNS_DEG = (0.0, 180.0)
 
 
-def _static_line_targets(robot, pos: np.ndarray, R0: np.ndarray, static: np.ndarray) -> list[np.ndarray]:
+def _static_line_targets(robot, pos: np.ndarray, R0: np.ndarray, static: np.ndarray,
+                         mirrors: bool = True) -> list[np.ndarray]:
     """3D targets (F, J, 3), base frame, that a weak-perspective camera turned about the line of the
     ``static`` (J,) base points sees as it sees ``pos`` (F, J, 3) through rotation R0 (base to camera):
     (a) pos turned about that line (:data:`STATIC_TURNS_DEG`); (b) pos mirrored in depth
@@ -381,7 +382,8 @@ def _static_line_targets(robot, pos: np.ndarray, R0: np.ndarray, static: np.ndar
     along), then turned so that the base points are where they are (a half turn about the bisector of
     their line and its mirror image) and about their line (:data:`STATIC_MIRROR_TURNS_DEG`). Every tracked
     point projects where it did; only the base points are where the robot has them, the rest is a start
-    for IK. [] when the base points do not lie on one line."""
+    for IK. Only (a) without ``mirrors`` (a pinhole camera: no depth mirror). [] when the base points do not
+    lie on one line."""
     from scipy.spatial.transform import Rotation
 
     sp = pos[0, static]
@@ -397,6 +399,9 @@ def _static_line_targets(robot, pos: np.ndarray, R0: np.ndarray, static: np.ndar
     def turns(degrees):
         return [Rotation.from_rotvec(np.radians(t) * axis).as_matrix() for t in degrees]
 
+    out = [(pos - c0) @ T.T + c0 for T in turns(STATIC_TURNS_DEG)]
+    if not mirrors:
+        return out
     M = R0.T @ np.diag([1.0, 1.0, -1.0]) @ R0  # the depth mirror, base frame
     b = axis + M @ axis
     if np.linalg.norm(b) < 1e-9:  # the line along the depth axis: its mirror image is itself, reversed
@@ -413,23 +418,26 @@ def _static_line_targets(robot, pos: np.ndarray, R0: np.ndarray, static: np.ndar
             continue  # a leaf (its own depth flip is the fit's), or a part already tried
         seen_sets.append(beyond)
         mirrored.append(_mirrored_beyond(Pm, beyond, index[parent], n)[0])
-    out = [(pos - c0) @ T.T + c0 for T in turns(STATIC_TURNS_DEG)]
     out += [(P - c0) @ (T @ G0).T + c0 for P in mirrored for T in turns(STATIC_MIRROR_TURNS_DEG)]
     return out
 
 
-def _static_line_starts(robot, r: dict, tracks: np.ndarray, w: np.ndarray, tie_variances: float,
+def _static_line_starts(robot, lead: dict, tracks: np.ndarray, w: np.ndarray, tie_variances: float,
                         keep: int = 2) -> list[tuple[np.ndarray, object]]:
-    """Starts (q (F, nq), weak-perspective view) for other basins that the camera's freedom about the
-    base's tracked points allows: where the tracked points no joint moves lie on one line (two base
-    points, say) and no joint turns about it (no gauge direction), they fix the camera only up to a turn
-    about that line, or (weak perspective) a turn that mirrors them in depth. Per target of
-    :func:`_static_line_targets` (the fit ``r``'s 3D motion turned about the line, or mirrored in depth
+    """Starts (q (F, nq), view) for other basins that the camera's freedom about the base's tracked
+    points allows: where the tracked points no joint moves lie on one line (two base points, say) and no
+    joint turns about it (no gauge direction), they fix the camera only up to a turn about that line, or
+    (weak perspective) a turn that mirrors them in depth. Per target of :func:`_static_line_targets` (the
+    fit ``lead``'s 3D motion turned about the line, or, for a weak-perspective view, mirrored in depth
     with the part beyond one link carried along and turned back onto the base points), the robot is
     fitted to it along the sequence (IK from the rest pose's side, warm-started), the camera to the
-    result in closed form, then everything to the tracks (a few steps, no prior). Starts whose squared
-    residuals are no more than ``tie_variances`` noise variances above ``r``'s (or below), and that are
-    not ``r``'s own motion, are returned, best first, at most ``keep``.
+    result (weak: in closed form; pinhole: the lead's camera turned as the motion was, then fitted), then
+    everything to the tracks (a few steps, no prior). Starts whose squared residuals are no more than
+    ``tie_variances`` noise variances above the lead's (or below), and that are not its own motion, are
+    returned, best first, at most ``keep``.
+
+    lead: q (F, nq), view (a static :class:`_View` or :class:`_PinholeView`), pos (F, J, 3) base frame,
+    free, gauge, delta (Huber), sse (its squared residuals, px^2) and var (its noise variance, px^2).
 
     Why: TALOS's left arm hangs from two tracked base points (arm_left_1_link, arm_left_2_link) whose
     line is no joint's axis. Weak camera, full ranges, 30 frames: seed 0 reported the whole arm turned
@@ -438,19 +446,21 @@ def _static_line_starts(robot, r: dict, tracks: np.ndarray, w: np.ndarray, tie_v
     reported the base line and upper arm mirrored in depth with the forearm carried along (four joints
     2-40 degrees off, as well fitted as the truth). Neither the fit's mirrors and depth flips nor IK on
     its own 3D points reach those basins (their points lie 0.2-0.8 m from the truth's in the base
-    frame: the camera differs)."""
+    frame: the camera differs). Through the same arm's pinhole camera with its intrinsics (seed 3 from
+    above), the fit ended the whole arm turned about the line again (arm_left_2 42, arm_left_3 167
+    degrees off), 94 noise variances above the true motion's basin, which none of its starts reached."""
     from .starts import _sequential_ik
 
-    q, view, pos = r["out"][0], r["out"][1], r["out"][3]
-    gauge, free = r["gauge"], r["free"]
+    q, view, pos, gauge, free = (lead[k] for k in ("q", "view", "pos", "gauge", "free"))
     if np.asarray(gauge).any() or getattr(view, "per_frame", False):
         return []
     F = len(q)
+    pinhole = isinstance(view, _PinholeView)
     static = (w > 0).any(0) & ~_moves(robot).any(1)  # tracked points that no joint moves
-    targets = _static_line_targets(robot, pos, view.R[0], static)
+    targets = _static_line_targets(robot, pos, view.R[0], static, mirrors=not pinhole)
     if not targets:
         return []
-    sse0, var = r["sse"], r["sse"] / max(r["n_obs"], 1)  # the refined fit's, as its tie test has them
+    sse0, var = lead["sse"], lead["var"]
     ones3, ident = np.ones(pos.shape[:2]), _View.identity(F)
     turn = np.array([True, True, True, False, True, True, True])  # rotation, (not scale), translation
     found: list[tuple[float, np.ndarray, object]] = []
@@ -459,9 +469,11 @@ def _static_line_starts(robot, r: dict, tracks: np.ndarray, w: np.ndarray, tie_v
         # the turn is only a start: the robot fitted to the target turned as a whole (one turn and shift for
         # the sequence, the base points holding it to the turn about their line)
         qa = _sequence_lm(robot, qa, X, ones3, ident, free, turn, 30, 1e-8, None)[0]
-        va = _camera_view(robot.positions(qa), tracks, w, False)
+        pa = robot.positions(qa)
+        va = _turned_camera(view, pos, pa, tracks, w, robot, qa, free, lead["delta"]) if pinhole else \
+            _camera_view(pa, tracks, w, False)
         qa, va, rna, _, _, _ = _sequence_lm(robot, qa, tracks, w, va, free, np.ones(va.n_params, bool), 30, 1e-8,
-                                            r["delta"])
+                                            lead["delta"])
         s = float((w * rna ** 2).sum())
         if s - sse0 > tie_variances * var or _same_motion(robot, qa, q) or \
                 any(_same_motion(robot, qa, o) for _, o, _ in found):
@@ -469,3 +481,16 @@ def _static_line_starts(robot, r: dict, tracks: np.ndarray, w: np.ndarray, tie_v
         found.append((s, qa, va))
     found.sort(key=lambda x: x[0])
     return [(qa, va) for _, qa, va in found[:keep]]
+
+
+def _turned_camera(view, pos: np.ndarray, pa: np.ndarray, tracks: np.ndarray, w: np.ndarray, robot, qa: np.ndarray,
+                   free: np.ndarray, delta: float | None):
+    """The static pinhole ``view`` of motion ``pos`` (F, J, 3) turned and shifted as the motion was to
+    ``pa`` (the rigid motion that fits best), so that ``pa`` projects where ``pos`` did, then fitted alone
+    to the tracks with the robot held at ``qa``."""
+    from .views import similarity_align
+
+    _, A, b = similarity_align(pos, pa, scale=False)  # pa ~ A pos + b
+    R = view.R[0] @ A.T
+    v = replace(view, R=R[None], t=(view.t[0] - R @ b)[None])
+    return _sequence_lm(robot, qa, tracks, w, v, np.zeros_like(free), np.ones(v.n_params, bool), 30, 1e-10, delta)[1]

@@ -601,8 +601,11 @@ def fit_joint_angles(
                 # it, or mirrored in depth (whole, or up to one link) and turned back onto the base points
                 # (candidates._static_line_starts); the basins that fit as well or better, refined as the rest
                 t_s = time.perf_counter()
-                turned = [refine_2d(dict(results[0]["c"], q=q_s, pos=robot.positions(q_s), camera0=v_s))
-                          for q_s, v_s in _static_line_starts(robot, results[0], tracks, w2, TIE_VARIANCES)]
+                r0 = results[0]
+                lead = dict(q=r0["out"][0], view=r0["out"][1], pos=r0["out"][3], gauge=r0["gauge"], free=r0["free"],
+                            delta=r0["delta"], sse=r0["sse"], var=r0["sse"] / max(r0["n_obs"], 1))
+                turned = [refine_2d(dict(r0["c"], q=q_s, pos=robot.positions(q_s), camera0=v_s))
+                          for q_s, v_s in _static_line_starts(robot, lead, tracks, w2, TIE_VARIANCES)]
                 if turned:
                     results, mirror_tied = order(results + turned)
                 timings["static_line"] = time.perf_counter() - t_s
@@ -697,6 +700,7 @@ def fit_joint_angles(
         tracks=tracks, confidence=confidence, positions_base=pos_base, input_poses=poses, timings=timings,
         q_std=trust.get("q_std"), noise_px=trust.get("noise_px"), alternatives=trust.get("alternatives", []),
         ambiguous=trust.get("ambiguous", np.zeros(robot.nv, bool)), joint_reasons=trust.get("reasons", []),
+        fps=float(fps),
     )
 
 
@@ -818,7 +822,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         positions_base=pos_base, input_poses=poses, timings=timings, intrinsics=cam,
         camera_pose=(view.R[0].copy(), view.t[0].copy()), focal_px=focal, focal_std_px=focal_std,
         q_std=trust["q_std"], noise_px=trust["noise_px"], alternatives=trust["alternatives"],
-        ambiguous=trust["ambiguous"], joint_reasons=trust["reasons"],
+        ambiguous=trust["ambiguous"], joint_reasons=trust["reasons"], fps=float(fps),
     )
 
 

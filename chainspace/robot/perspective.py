@@ -33,7 +33,8 @@ from .observability import _hold, _structural
 from .solver import _huber, _motion_prior, _noise_sigma, _normal_equations, _sequence_lm, _smooth_lm, \
     _smoothed_objective
 from .views import _PinholeView, _camera_view, _pinhole_from_weak
-from .candidates import TIE_VARIANCES, _pinhole_twin, _same_motion, _turned_twins, _viterbi_reanchored
+from .candidates import TIE_VARIANCES, _pinhole_twin, _same_motion, _static_line_starts, _turned_twins, \
+    _viterbi_reanchored
 from .starts import _base_turns
 
 # a perspective fit must beat weak perspective's by this many noise variances (squared residuals, a
@@ -431,9 +432,9 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
         step(i)
         fits += first if k == 0 and early else refine_in_full(k)
     contend([])
-    # five searches, each a step of the stage's log (a count and the time left: 28 s in the demo)
-    other = stage_steps("robot fit, perspective: other minima (a searched camera, grafts, twins, windows, turned "
-                        "joints), search", 5)
+    # six searches, each a step of the stage's log (a count and the time left: 28 s in the demo)
+    other = stage_steps("robot fit, perspective: other minima (a searched camera, grafts, twins, turns about the "
+                        "base's line, windows, turned joints), search", 6)
     other(0)
     searched = _searched_start(robot, fits[0], tr, w, starts[0], K, n_obs, weak_sse)
     if searched is not None:  # one more contender, on the objective like the others
@@ -458,16 +459,24 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
         if _robust(plain[2], w, lead["delta"]) - _robust(lead["rn"], w, lead["delta"]) <= TIE_VARIANCES * var0:
             fits += finish(plain[0], plain[1], lead["start"], plain[5])
     contend([])
+    # the winner turned about the line of the base's tracked points, where no joint turns about it, with the
+    # camera turned to match (candidates._static_line_starts): the camera's freedom about that line is bounded
+    # only by whether the robot can make the turned motion, and no start need lie in the basin it leads to
+    other(3)
+    lead = fits[0]
+    for q_s, v_s in _static_line_starts(robot, dict(lead, gauge=lead["start"]["gauge"], var=_noise_variance(lead, w)),
+                                        tr, w, TIE_VARIANCES):
+        contend(finish(q_s, v_s, lead["start"], 0))
     # the winner's path moved on windows along what the tracks fix least: minima that differ from it on a
     # window only, which no whole-sequence candidate is (a tie then reported, or a lower one the winner)
-    other(3)
+    other(4)
     lead = fits[0]
     contend([r for r in _weak_windows(robot, lead, tr, w, fps) if not _same_motion(robot, r["q"], lead["q"])])
     # and its loosest joints turned whole: minima tens of degrees away along them, beyond the windows' reach.
     # A turned fit takes over only where the tracks prefer it beyond the tie tolerance; within it, the one the
     # starts reached stays and the turned one is reported as a tie (among minima within a noise variance of
     # each other, the full ranges' Panda from below, which one is lowest is the noise's choice)
-    other(4)
+    other(5)
     turned = [r for r in _loose_turns(robot, fits[0], tr, w) if not any(_same_motion(robot, r["q"], o["q"])
                                                                        for o in fits)]
     clear = fits[0]["objective"] - TIE_VARIANCES * _noise_variance(fits[0], w)

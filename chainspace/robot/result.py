@@ -30,6 +30,13 @@ def joint_flags(fit: Any, attr: str, n: int | None = None) -> np.ndarray:
     return flags
 
 
+def playback_fps(fit: Any, fps: float | None = None) -> float:
+    """The frame rate (frames per second) to draw or play a fit's motion at: ``fps`` when given, else the
+    one the fit assumed (:attr:`JointFit.fps`), else 30 (a fit saved before it was kept, or none)."""
+    own = getattr(fit, "fps", None)
+    return float(fps if fps is not None else own if own is not None and np.isfinite(own) and own > 0 else 30.0)
+
+
 def joint_reasons(fit: Any) -> list[str]:
     """Why each joint of the fit is flagged (one string per joint, "" where it is not; see
     :attr:`JointFit.joint_reasons`). A fit saved before the reasons were kept per joint gives its
@@ -72,7 +79,8 @@ class JointFit:
     ``ambiguous`` (nv,) bool: joints reported, not trusted: an unsettled alternative differs there by
     more than :data:`~chainspace.robot.uncertainty.AMBIGUOUS_DEG` degrees RMS ("tie"), the fit misses a
     tracked point the joint moves ("poor fit"), or its standard deviation is more than that ("uncertain");
-    ``joint_reasons`` (nv,) str: why, per joint ("" where not flagged).
+    ``joint_reasons`` (nv,) str: why, per joint ("" where not flagged). ``fps``: the frame rate (frames per
+    second) the motion prior assumed, which plots and the viewer play the motion at.
     """
 
     q: np.ndarray
@@ -106,6 +114,7 @@ class JointFit:
     alternatives: list[dict] = field(default_factory=list)  # {"angles" (F, nv), "score", "settled_by"}
     ambiguous: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # (nv,)
     joint_reasons: list[str] = field(default_factory=list)  # (nv,) why each ambiguous joint is; "" elsewhere
+    fps: float | None = None  # frames per second the motion prior assumed; None in fits saved before it was kept
 
     @property
     def n_frames(self) -> int:

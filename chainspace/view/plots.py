@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import os
+import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -17,8 +18,9 @@ import numpy as np
 
 from ..errors import TrackError
 from ..io.results import atomic_write, check_writable
+from ..robot.result import playback_fps
 
-__all__ = ["plot_convergence", "plot_joint_angles", "plot_joint_errors", "plot_error_sweep"]
+__all__ = ["plot_convergence", "convergence_notes", "plot_joint_angles", "plot_joint_errors", "plot_error_sweep"]
 
 _FORMATS = {".png": "png", ".svg": "svg", ".pdf": "pdf"}
 
@@ -32,23 +34,27 @@ def _figure(nrows: int = 1, ncols: int = 1, *, sharex: bool = False, **kw: Any) 
     return fig, axes
 
 
-def _save(fig: Any, path: str | os.PathLike, overwrite: bool) -> Path:
+def _save(fig: Any, path: str | os.PathLike, overwrite: bool, layout: bool = True) -> Path:
     path = Path(path)
     fmt = _FORMATS.get(path.suffix.lower())
     if fmt is None:
         raise TrackError(f"{path}: plots are written as .png, .svg or .pdf, not {path.suffix or 'no suffix'!r}")
-    fig.tight_layout()
+    if layout:  # (else the caller laid it out)
+        fig.tight_layout()
     with atomic_write(path, "wb", overwrite) as f:
         fig.savefig(f, format=fmt, dpi=120)
     return path
 
 
-def plot_convergence(rec: Any, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
-    """Reprojection error per iteration of each stage and, when known, the 3D error (mm).
+def plot_convergence(rec: Any, path: str | os.PathLike, *, fit: Any = None, overwrite: bool = False) -> Path:
+    """Reprojection error per iteration of each stage, the refinement's own objective, and, when known,
+    the 3D error (mm), with a caption that says what each curve is (:func:`convergence_notes`).
 
-    ``rec.history`` maps a stage to series: ``"reprojection"`` (image units, RMS) and ``"error_3d"``
-    (metres). Stages are drawn one after the other on a common iteration axis, like the convergence
-    figure of Wandt et al. (2017).
+    ``rec.history`` maps a stage to series: ``"reprojection"`` (image units, RMS), ``"objective"`` (the
+    refinement's E after every block) and ``"error_3d"`` (metres); ``"selection"`` the track scores that
+    chose between the stages. Stages are drawn one after the other on a common iteration axis, like the
+    convergence figure of Wandt et al. (2017). ``fit``: a robot fit of the same tracks
+    (:class:`~chainspace.robot.result.JointFit`), whose reprojection is drawn as a level for comparison.
     """
     history: Mapping[str, Mapping[str, Sequence[float]]] = getattr(rec, "history", None) or {}
     check_writable([path], overwrite)
@@ -57,27 +63,78 @@ def plot_convergence(rec: Any, path: str | os.PathLike, *, overwrite: bool = Fal
     if not series:
         raise TrackError("this reconstruction has no convergence history to plot")
     has_3d = any(len(h.get("error_3d", [])) for h in series.values())
-    fig, axes = _figure(2 if has_3d else 1, 1, figsize=(6.4, 6.0 if has_3d else 3.6))
+    has_e = any(len(h.get("objective", [])) > 1 for h in series.values())
+    rows = [("reprojection", 1.0, "reprojection error (px RMS)")]
+    rows += [("objective", None, "objective E / its start")] if has_e else []
+    rows += [("error_3d", 1000.0, "3D error (mm)")] if has_3d else []
+    notes = [line for note in convergence_notes(rec, fit) for line in textwrap.wrap(note, 130)]
+    height = 2.6 * len(rows) + 0.16 * len(notes) + 0.4
+    fig, axes = _figure(len(rows), 1, sharex=True, figsize=(7.2, height))
+    colours = {stage: f"C{i}" for i, stage in enumerate(series)}
     offset = 0
     for stage, h in series.items():
         n = max(len(h.get(k, [])) for k in keys)
-        for ax, key, scale in ((axes[0, 0], "reprojection", 1.0), (axes[-1, 0], "error_3d", 1000.0)):
+        for ax, (key, scale, _) in zip(axes[:, 0], rows):
             v = np.asarray(h.get(key, []), dtype=float)
-            if len(v) and (key == "reprojection" or has_3d):
-                ax.plot(offset + np.arange(len(v)), v * scale, marker="." if len(v) < 40 else None, label=stage)
+            if not len(v):
+                continue
+            # E is logged after every block, several per iteration: spread over the stage's iterations
+            x = offset + (np.linspace(0, max(n - 1, 0), len(v)) if scale is None else np.arange(len(v)))
+            ax.plot(x, v * scale if scale is not None else v / v[0], marker="." if len(v) < 40 else None, label=stage,
+                    color=colours[stage])
         offset += n
         for ax in axes[:, 0]:
             ax.axvline(offset - 0.5, color="0.8", lw=0.8)
-    axes[0, 0].set_ylabel("reprojection error (px RMS)")
-    if has_3d:
-        axes[1, 0].set_ylabel("3D error (mm)")
-    for ax in axes[:, 0]:
+    px = _fit_reprojection(fit)
+    if px is not None:
+        kind = "pinhole" if getattr(fit, "intrinsics", None) is not None else "weak-perspective"
+        axes[0, 0].axhline(px, color="k", ls="--", lw=1, label=f"robot fit ({kind} camera)")
+    for ax, (_, _, label) in zip(axes[:, 0], rows):
+        ax.set_ylabel(label)
         ax.set_yscale("log")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(title="stage")
+        ax.legend(title="stage", fontsize="small")
     axes[-1, 0].set_xlabel("iteration")
     axes[0, 0].set_title("convergence")
-    return _save(fig, path, overwrite)
+    fig.tight_layout(rect=(0, (0.16 * len(notes) + 0.2) / height, 1, 1))
+    fig.text(0.01, 0.01, "\n".join(notes), fontsize=7, va="bottom", ha="left")
+    return _save(fig, path, overwrite, layout=False)
+
+
+def _fit_reprojection(fit: Any) -> float | None:
+    """A robot fit's reprojection error over all frames (px RMS), or None."""
+    r = None if fit is None else getattr(fit, "residual_px", None)
+    r = None if r is None else np.asarray(r, float)
+    return None if r is None or not np.isfinite(r).any() else float(np.sqrt(np.nanmean(r ** 2)))
+
+
+def convergence_notes(rec: Any, fit: Any = None) -> list[str]:
+    """The lines under the convergence plot: what the stages' reprojection measures, why the refinement's
+    can rise, which stage was kept and on what score (``rec.history["selection"]``), and the robot
+    fit's reprojection when ``fit`` is given."""
+    history = getattr(rec, "history", None) or {}
+    weak = [s for s in ("rigid", "kcs", "refine") if s in history]
+    notes = [f"Reprojection of {' and '.join(weak)} through weak-perspective cameras, bone lengths free (scale-free): "
+             "a camera close to the subject leaves a perspective misfit that these stages cannot remove."] if weak else []
+    if "perspective" in history:
+        notes.append("perspective: the same poses refined on the camera's rays (pinhole, known intrinsics).")
+    if "refine" in history:
+        notes.append("The refinement minimises E = reprojection + bone-length constancy + smoothness (normalised "
+                     "to its start in the panel below), so its reprojection can rise while the bones settle.")
+    sel = history.get("selection") or {}
+    chosen = list(sel.get("chosen", []))
+    if chosen and len(sel.get("kcs", [])) == 3 and len(sel.get("refine", [])) == 3:
+        (a, a_rms, a_var), other = sel[chosen[0]], "kcs" if chosen[0] == "refine" else "refine"
+        b, b_rms, b_var = sel[other]
+        notes.append(f"Kept: {chosen[0]} (track score {a:.3g} = reprojection {a_rms:.3g} + bone-length variation "
+                     f"{a_var:.3g}, both relative to the subject's size in the image; {other}: {b:.3g} = {b_rms:.3g} "
+                     f"+ {b_var:.3g}).")
+    px = _fit_reprojection(fit)
+    if px is not None:
+        kind = "its pinhole camera" if getattr(fit, "intrinsics", None) is not None else "a weak-perspective camera"
+        notes.append(f"Robot fit: {px:.3g} px RMS through {kind}, with the robot's own bone lengths (its URDF): "
+                     "the level to compare the stages with.")
+    return notes
 
 
 def _q_names(fit: Any) -> list[str]:
@@ -85,7 +142,7 @@ def _q_names(fit: Any) -> list[str]:
     return names or [f"q{i}" for i in range(np.shape(fit.q)[1])]
 
 
-def plot_joint_angles(fit: Any, truth_q: Any, path: str | os.PathLike, *, fps: float = 30.0,
+def plot_joint_angles(fit: Any, truth_q: Any, path: str | os.PathLike, *, fps: float | None = None,
                       joints: Sequence[str] | None = None, overwrite: bool = False) -> Path:
     """Fitted joint angles over time (degrees) against the truth, one panel per joint.
 
@@ -122,7 +179,7 @@ def plot_joint_angles(fit: Any, truth_q: Any, path: str | os.PathLike, *, fps: f
     ncols = 2 if len(pick) > 3 else 1
     nrows = math.ceil(len(pick) / ncols)
     fig, axes = _figure(nrows, ncols, figsize=(6.4 * ncols / 1.3, 1.9 * nrows + 0.6), sharex=True)
-    t = np.arange(len(q)) / fps
+    t = np.arange(len(q)) / playback_fps(fit, fps)
     for k, i in enumerate(pick):
         ax = axes.flat[k]
         rel = bool(relative[i])

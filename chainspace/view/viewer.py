@@ -332,7 +332,7 @@ def _unpack(rec_or_poses: Any, chain: Any) -> tuple[np.ndarray | None, Any, np.n
 
 
 def build_scene(vis: Any, rec_or_poses: Any = None, *, chain: Any = None, truth: Any = None, fit: Any = None,
-                fps: float = 30.0, camera: Any = None, camera_pose: Any = None) -> Any:
+                fps: float | None = None, camera: Any = None, camera_pose: Any = None) -> Any:
     """Draw everything into meshcat visualizer ``vis`` and set the animation; return the Animation.
 
     ``rec_or_poses`` is a Reconstruction (or what :func:`chainspace.io.results.load_results` returns) or
@@ -344,9 +344,12 @@ def build_scene(vis: Any, rec_or_poses: Any = None, *, chain: Any = None, truth:
     camera's frustum (node ``chainspace/camera/frustum``) out to 0.3 of the scene's size.
     ``camera_pose`` ``(R, t)`` maps the scene's points (the robot's base frame with a fit, else the
     reconstruction's frame) into the camera frame, ``x_cam = R x + t``; by default it is frame 0's
-    fitted weak-perspective camera seen as a pinhole with ``camera``'s intrinsics.
+    fitted weak-perspective camera seen as a pinhole with ``camera``'s intrinsics. ``fps`` (frames per
+    second): by default the fit's own (:attr:`~chainspace.robot.result.JointFit.fps`), else 30.
     """
     from meshcat.animation import Animation
+
+    from ..robot.result import playback_fps
 
     if hasattr(rec_or_poses, "q"):  # a JointFit passed first
         fit, rec_or_poses = fit if fit is not None else rec_or_poses, None
@@ -358,6 +361,7 @@ def build_scene(vis: Any, rec_or_poses: Any = None, *, chain: Any = None, truth:
     if poses is not None:
         poses = _check_poses(poses, chain.n_joints, "poses")
     truth = None if truth is None else _check_poses(truth, None, "truth poses")
+    fps = playback_fps(fit, fps)
     animation = Animation(default_framerate=fps)
     scene = vis["chainspace"]
     if camera is not None:
@@ -463,7 +467,7 @@ def _with_summary(html: str, fit: Any) -> str:
 
 
 def write_html(path: str | os.PathLike, rec_or_poses: Any = None, *, chain: Any = None, truth: Any = None,
-               fit: Any = None, fps: float = 30.0, overwrite: bool = False, camera: Any = None,
+               fit: Any = None, fps: float | None = None, overwrite: bool = False, camera: Any = None,
                camera_pose: Any = None) -> Path:
     """Write one standalone HTML file animating the motion (see :func:`build_scene` for the inputs).
 
@@ -485,7 +489,7 @@ def write_html(path: str | os.PathLike, rec_or_poses: Any = None, *, chain: Any 
     return Path(path)
 
 
-def show(rec_or_poses: Any = None, *, chain: Any = None, truth: Any = None, fit: Any = None, fps: float = 30.0,
+def show(rec_or_poses: Any = None, *, chain: Any = None, truth: Any = None, fit: Any = None, fps: float | None = None,
          open_browser: bool = False, zmq_url: str | None = None, camera: Any = None,
          camera_pose: Any = None) -> Any:
     """Show the motion in a live meshcat viewer (starts a meshcat server); return the Visualizer.
