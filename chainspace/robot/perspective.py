@@ -432,7 +432,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
         step(i)
         fits += first if k == 0 and early else refine_in_full(k)
     contend([])
-    # six searches, each a step of the stage's log (a count and the time left: 28 s in the demo)
+    # six searches, each a step of the stage's log (a count and the time left: 3.5 s in the demo at 300 frames)
     other = stage_steps("robot fit, perspective: other minima (a searched camera, grafts, twins, turns about the "
                         "base's line, windows, turned joints), search", 6)
     other(0)
