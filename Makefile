@@ -29,8 +29,10 @@ browser:
 	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null) ; } || \
 	  echo "note: chromium could not be installed; the browser test will be skipped"
 
+# one worker per core, idle workers take queued tests; one BLAS thread per worker: the fits' many small
+# solves run several times slower when each worker's BLAS threads compete for the same cores
 test: install browser
-	$(BIN)/python -m pytest -q -n auto --dist worksteal  # one worker per core; idle workers take queued tests
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --dist worksteal
 
 # Every suite in benchmarks/ with its --quick settings; exit code 77 from a script means its data are
 # missing (it says which); set CHAINSPACE_DATA to the shared data folder for the CMU/DeepMimic/dog rows.
