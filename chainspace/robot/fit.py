@@ -356,8 +356,9 @@ def fit_joint_angles(
     search_ties
         Also search beyond the fit's own candidates for motions that fit the tracks as well (depth flips
         refitted to the tracks, the best other continuous branch frame by frame, restarts with each joint
-        shifted by ``uncertainty.SHAKE_DEG``), and report those found in ``alternatives``/``ambiguous``.
-        Slow (several times the fit: a refit per joint and sign); off by default.
+        shifted by ``uncertainty.SHAKE_DEG`` and ``SHAKE_FAR_DEG``, from the reported fit and the two
+        runners-up), and report those found in ``alternatives``/``ambiguous``. Slow (several times the
+        fit: a refit per joint, shift and base); off by default.
 
     Returns
     -------
