@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 
 from .kinematics import RobotKinematics, _gauge_q, _held_q, _random_q, _seeded, _wrapped
-from .views import _PinholeView, _View, _camera_view
+from .views import _PinholeView, _View, _camera_view, similarity_align
 from .solver import _sequence_lm
 from .observability import _hold, _moves
 
@@ -344,7 +344,6 @@ def _turned_twins(robot: RobotKinematics, q: np.ndarray, view) -> list:
     turn off on joint1 at objective 142.8, the true motion's mirror image 150.1 (noise variance about
     1.1), a tie no start reached, reported as settled."""
     from .starts import _base_turns
-    from .views import similarity_align
 
     pos = robot.positions(q)
     out = []
@@ -355,9 +354,7 @@ def _turned_twins(robot: RobotKinematics, q: np.ndarray, view) -> list:
             continue
         _, A, b = similarity_align(np.where(moved[..., None], pos, np.nan), np.where(moved[..., None], pt, np.nan),
                                    scale=False)  # the turn, x_t = A x + b
-        R = view.R[0] @ A.T
-        t = view.t[0] - R @ b
-        v = replace(view, R=R[None], t=t[None])
+        v = _view_moved_with(view, A, b)
         if np.abs(v.apply(pt)[0] - view.apply(pos)[0]).max() < 1e-6 * max(view.f, 1.0):
             continue  # every tracked point where it was: the same motion up to the gauge
         out.append((qt, v))
@@ -488,9 +485,13 @@ def _turned_camera(view, pos: np.ndarray, pa: np.ndarray, tracks: np.ndarray, w:
     """The static pinhole ``view`` of motion ``pos`` (F, J, 3) turned and shifted as the motion was to
     ``pa`` (the rigid motion that fits best), so that ``pa`` projects where ``pos`` did, then fitted alone
     to the tracks with the robot held at ``qa``."""
-    from .views import similarity_align
-
     _, A, b = similarity_align(pos, pa, scale=False)  # pa ~ A pos + b
-    R = view.R[0] @ A.T
-    v = replace(view, R=R[None], t=(view.t[0] - R @ b)[None])
+    v = _view_moved_with(view, A, b)
     return _sequence_lm(robot, qa, tracks, w, v, np.zeros_like(free), np.ones(v.n_params, bool), 30, 1e-10, delta)[1]
+
+
+def _view_moved_with(view, A: np.ndarray, b: np.ndarray):
+    """The static pinhole ``view`` turned and shifted with the scene: where the base-frame points move
+    rigidly, x -> A x + b, the returned view sees each moved point where ``view`` saw it."""
+    R = view.R[0] @ A.T
+    return replace(view, R=R[None], t=(view.t[0] - R @ b)[None])

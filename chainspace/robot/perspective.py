@@ -590,7 +590,8 @@ def _trust(robot: RobotKinematics, best: dict, fits: list[dict], tracks: np.ndar
     from .uncertainty import assess_fit
 
     st = best["start"]
-    best["out"] = (best["q"], best["view"], best["rn"], best["pos"], best["conv"], best["n_iter"])
+    for r in fits:  # (best among them) in the weak fit's layout, which assess_fit reads
+        r["out"] = (r["q"], r["view"], r["rn"], r["pos"], r["conv"], r["n_iter"])
     best["free_prior"] = st["free_prior"]
     var = _noise_variance(best, w)
     return assess_fit(robot, best, [(r["objective"], r) for r in fits], var, tracks, w, best["prior"], st["blind"],

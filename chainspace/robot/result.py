@@ -37,6 +37,16 @@ def playback_fps(fit: Any, fps: float | None = None) -> float:
     return float(fps if fps is not None else own if own is not None and np.isfinite(own) and own > 0 else 30.0)
 
 
+def reprojection_rms(fit: Any) -> float | None:
+    """A fit's reprojection error over all frames (px RMS, from ``fit.residual_px``, per frame): None for a
+    fit without tracks, NaN where no frame has one."""
+    r = getattr(fit, "residual_px", None)
+    if r is None:
+        return None
+    r = np.asarray(r, float)
+    return float(np.sqrt(np.nanmean(r ** 2))) if np.isfinite(r).any() else float("nan")
+
+
 def joint_reasons(fit: Any) -> list[str]:
     """Why each joint of the fit is flagged (one string per joint, "" where it is not; see
     :attr:`JointFit.joint_reasons`). A fit saved before the reasons were kept per joint gives its

@@ -592,8 +592,8 @@ def _shaken(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict
 
 def _runners_up(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict]], n: int) -> list[dict]:
     """The ``n`` scored fits of lowest score after the winner, distinct motions from it and each other,
-    each with its ``out`` (q, view, rn, ...; set from its own fields where a fit carries them so) and
-    ``delta``: the bases of :func:`_shaken` beyond the winner.
+    among those with an ``out`` (q, view, rn, ...) and a ``delta``: the bases of :func:`_shaken` beyond
+    the winner.
 
     Why: a basin can lie two moves from the winner, each move alone ending above the tie tolerance.
     TALOS's left arm through a weak camera from below (full ranges, 30 frames, seed 7): the true motion's
@@ -609,8 +609,6 @@ def _runners_up(robot: RobotKinematics, winner: dict, scored: list[tuple[float, 
     for _, x in sorted(scored, key=lambda sx: sx[0]):
         if len(out) == n:
             break
-        if "out" not in x and all(k in x for k in ("q", "view", "rn")):
-            x["out"] = (x["q"], x["view"], x["rn"])  # a perspective fit: only q, view and rn are read
         if x is winner or "out" not in x or "delta" not in x or \
                 any(_same_motion(robot, x["out"][0], o["out"][0]) for o in [winner] + out):
             continue

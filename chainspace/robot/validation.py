@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import DescriptionError, TrackError
 from .observability import _weights
-from .result import joint_flags, joint_reasons
+from .result import joint_flags, joint_reasons, reprojection_rms
 from .uncertainty import CAMERA_MISFIT_RATIO, camera_misfit, track_jitter
 
 __all__ = ["ValidationReport", "validate", "DEFAULT_THRESHOLDS", "BONES_NOTE"]
@@ -248,7 +248,7 @@ def validate(fit: Any, truth_q: Any = None, *, thresholds: dict[str, float] | No
         else:  # to a monocular reconstruction of tracks: that has errors of its own, the tracks judge
             distance = float(np.nanmean(fit.residual_3d) / fit.scale)
     bones = _bone_errors(robot, fit)
-    rep = None if fit.residual_px is None else float(np.sqrt(np.nanmean(np.asarray(fit.residual_px) ** 2)))
+    rep = reprojection_rms(fit)
 
     checks: dict[str, bool] = {}
     judged = [j for j in joints if j["judged"]]

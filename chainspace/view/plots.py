@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import TrackError
 from ..io.results import atomic_write, check_writable
-from ..robot.result import playback_fps
+from ..robot.result import playback_fps, reprojection_rms
 
 __all__ = ["plot_convergence", "convergence_notes", "plot_joint_angles", "plot_joint_errors", "plot_error_sweep"]
 
@@ -102,10 +102,9 @@ def plot_convergence(rec: Any, path: str | os.PathLike, *, fit: Any = None, over
 
 
 def _fit_reprojection(fit: Any) -> float | None:
-    """A robot fit's reprojection error over all frames (px RMS), or None."""
-    r = None if fit is None else getattr(fit, "residual_px", None)
-    r = None if r is None else np.asarray(r, float)
-    return None if r is None or not np.isfinite(r).any() else float(np.sqrt(np.nanmean(r ** 2)))
+    """A robot fit's reprojection error over all frames (px RMS), or None (no fit, or no tracks)."""
+    px = None if fit is None else reprojection_rms(fit)
+    return px if px is not None and np.isfinite(px) else None
 
 
 def convergence_notes(rec: Any, fit: Any = None) -> list[str]:
