@@ -54,8 +54,10 @@ def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray,
     K = len(starts)
     q0 = np.concatenate(starts)
     idx = np.tile(np.arange(F), K)
+    # stopped at a millionth's relative change: these solutions only rank the branches, and the path
+    # picked is solved again as a sequence (issue 19: a tenth of a 6-axis arm's fit was rows creeping)
     qs, _, rn, _, _, _ = _sequence_lm(robot, q0, target[idx], w[idx], view.take(idx), free[idx],
-                                      np.zeros(view.n_params, bool), 30, 1e-8, None)
+                                      np.zeros(view.n_params, bool), 30, 1e-6, None)
     qs = qs.reshape(K, F, nq)
     data = (w[idx] * rn ** 2).sum(1).reshape(K, F) / max(sigma, 1e-12) ** 2
     data += 0.05 * np.abs(_wrapped(robot, qs - robot.q_rest)).sum(-1)

@@ -464,7 +464,10 @@ def fit_joint_angles(
 
         delta_used = [None]
 
-        def refine_2d(c):
+        def refine_2d(c, known=()):
+            # None when the branch search puts the motion on a fit in ``known``, refined before: both
+            # mirror starts of an arm whose mirror image is no pose of it end on one motion, which
+            # would be refined, searched and smoothed twice
             nonlocal n_iter
             P0, _ = _affine_camera(c["pos"], tracks, w2, per_frame)
             pos, jac = robot.jacobians(c["q"])
@@ -491,6 +494,9 @@ def fit_joint_angles(
                 sig = max(_noise_sigma(out[2], w2), px_floor)
                 q_fix, view_fix = branches(robot, out[0], tracks, w2, out[1], free, sig, c["gauge"],
                                                       per_frame, blind, unseen2)
+                if any(_same_motion(robot, q_fix, k["q"]) for k in known):
+                    n_iter += out[-1]
+                    return None
                 if _same_motion(robot, q_fix, out[0]):
                     break
                 new = _sequence_lm(robot, q_fix, tracks, w2, view_fix, free, np.ones(6, bool), max_iter, tol, delta)
@@ -526,18 +532,26 @@ def fit_joint_angles(
 
         # both mirror images: a poor reconstruction may favour the wrong one in 3D
         step = stage_steps("robot fit: refining on the tracks, candidate", len(candidates))
+        def refined(starts, known=()):  # the fits of those starts that are new motions
+            new: list[dict] = []
+            for c in starts:
+                r = refine_2d(c, list(known) + new)
+                if r is not None:
+                    new.append(r)
+            return new
+
         results = []
         for k, c in enumerate(candidates):
             step(k)
-            results.append(refine_2d(c))
+            results += refined([c], results)
         if not per_frame and transform == "similarity" and min(r["cost"] for r in results) > 3 * px_floor:
             # the tracks are fitted poorly from the reconstruction's start: also a camera found from the
             # tracks alone (costly, so only then)
             v2, q2 = _initial_camera(robot, tracks, w2, _hold(robot, candidates[0]["q"], blind, candidates[0]["gauge"],
                                                               False)[1])
-            alt = refine_2d(dict(candidates[0], q=q2, pos=robot.positions(q2), camera0=v2))
-            if alt["cost"] * 1.5 < min(r["cost"] for r in results):  # clearly better, not a tie
-                results.append(alt)
+            alt = refined([dict(candidates[0], q=q2, pos=robot.positions(q2), camera0=v2)], results)
+            if alt and alt[0]["cost"] * 1.5 < min(r["cost"] for r in results):  # clearly better, not a tie
+                results += alt
         def tracks_tie(a, b):
             # refined fits: b is as good as a unless its squared residuals exceed a's by more than
             # 25 noise variances (a likelihood ratio test, noise estimated from a's residuals)
@@ -595,7 +609,7 @@ def fit_joint_angles(
                 reflected.append(r0)
                 stage("robot fit: refining the best fit's two reflections on the tracks (round %d of at most 2)",
                       len(reflected))
-                alts = [refine_2d(reflection(r0, M)) for M in (depth_mirror(r0), np.diag([1.0, -1.0, 1.0]))]
+                alts = refined((reflection(r0, M) for M in (depth_mirror(r0), np.diag([1.0, -1.0, 1.0]))), results)
                 results, mirror_tied = order(results + alts)
             if not per_frame:
                 # the camera's freedom about the base's line of tracked points: the best motion turned about
@@ -605,8 +619,8 @@ def fit_joint_angles(
                 r0 = results[0]
                 lead = dict(q=r0["out"][0], view=r0["out"][1], pos=r0["out"][3], gauge=r0["gauge"], free=r0["free"],
                             delta=r0["delta"], sse=r0["sse"], var=r0["sse"] / max(r0["n_obs"], 1))
-                turned = [refine_2d(dict(r0["c"], q=q_s, pos=robot.positions(q_s), camera0=v_s))
-                          for q_s, v_s in _static_line_starts(robot, lead, tracks, w2, TIE_VARIANCES)]
+                turned = refined((dict(r0["c"], q=q_s, pos=robot.positions(q_s), camera0=v_s)
+                                  for q_s, v_s in _static_line_starts(robot, lead, tracks, w2, TIE_VARIANCES)), results)
                 if turned:
                     results, mirror_tied = order(results + turned)
                 timings["static_line"] = time.perf_counter() - t_s

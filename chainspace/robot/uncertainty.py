@@ -34,6 +34,7 @@ import numpy as np
 
 from .kinematics import RobotKinematics
 from .solver import _huber, _noise_sigma, _normal_equations
+from .views import similarity_align
 
 
 def _block_tridiagonal_inverse_diagonal(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -482,16 +483,18 @@ def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float,
 
     score = _scorer(robot, winner, scored, tracks, w, prior)
     twins = _wrist_twins(robot, q, free)  # exact under any camera: scored as they are
+    # exact with the camera moved as the scene is: the winner's own residuals
+    moved = [(score(m, winner["out"][2]), {"q": m}) for m in _wrist_twins(robot, q, free, moved=True)]
     flips = _depth_flips(robot, q, view, free)
     if not refit:  # scored as mirrored: exact under weak perspective, a few pixels off under a pinhole
-        return [(score(m), {"q": m}) for m in twins + flips]
+        return moved + [(score(m), {"q": m}) for m in twins + flips]
     # and the best other continuous branch (_other_branch), refined and scored alike
     flips += [b["q"] for b in _other_branch(robot, winner, tracks, w, free, sigma)]
     distinct: list[np.ndarray] = []
     for m in flips:  # many links give the same twin: each is refitted once
         if not any(_same_motion(robot, m, o) for o in distinct + [q]):
             distinct.append(robot.continuous(m))
-    exact = [(score(m), {"q": m}) for m in twins]
+    exact = moved + [(score(m), {"q": m}) for m in twins]
     if not distinct:
         return exact
     F, K = len(q), len(distinct)
@@ -507,7 +510,7 @@ def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float,
     return exact + [(score(qs[k], rn[k]), {"q": qs[k]}) for k in range(K)]
 
 
-def _wrist_twins(robot: RobotKinematics, q: np.ndarray, free: np.ndarray) -> list[np.ndarray]:
+def _wrist_twins(robot: RobotKinematics, q: np.ndarray, free: np.ndarray, moved: bool = False) -> list[np.ndarray]:
     """Motions (F, nq) that put every tracked point exactly where q (F, nq) does, by the Euler-angle
     twin of three successive turning joints: (a + pi, -b, c + pi) or (a + pi, pi - b, c + pi) (ZYZ
     and ZYX-like axes), each joint moved by whole turns into its limits. Only twins within the limits,
@@ -517,17 +520,26 @@ def _wrist_twins(robot: RobotKinematics, q: np.ndarray, free: np.ndarray) -> lis
     Why: a wrist whose tracked points lie on its axes (the Kinova j2s6s200's, the wrist of most 6-axis
     arms) shows the same points in both, in every frame and under any camera; the depth flips and the
     per-frame IK searches did not reach it (Kinova from below, seed 0: joints 4-6 180 / 121 / 178
-    degrees off, reported observable, the true motion's squared residuals equal to the winner's)."""
+    degrees off, reported observable, the true motion's squared residuals equal to the winner's).
+
+    ``moved``: instead, the twins of three joints whose first is held in frame 0 only (seen relative to
+    frame 0, the camera's turn standing in for it) that put every point where q does after one rigid
+    motion of the whole sequence: with the camera moved alike they show the same image. A shoulder (the
+    Panda's joints 1-3 as (a, -b, c + pi): the twin (a + pi, -b, c + pi) turned back half a turn about
+    the base axis, the first joint's value kept where the fit holds it), seen by a static camera. Through a weak camera over its full ranges the Panda was reported observable in
+    such a twin of the truth, joints 2 and 3 94 and 180 degrees off (seed 20 from above)."""
     a = robot.angles(q)
     pos = robot.positions(q)
     size = max(float(np.ptp(pos.reshape(-1, 3), axis=0).max()), 1e-9)
+    relative = ~free[0] & free[1:].all(0) if len(q) > 1 else np.zeros(robot.nv, bool)
     out: list[np.ndarray] = []
     for k in range(robot.nv - 2):
-        if not (robot.turns_v[k:k + 3].all() and free[:, k:k + 3].all()):
+        held = free[:, k:k + 3].all() if not moved else relative[k] and free[:, k + 1:k + 3].all()
+        if not (robot.turns_v[k:k + 3].all() and held):
             continue
         for mid in (-a[:, k + 1], np.pi - a[:, k + 1]):
             b = a.copy()
-            b[:, k] += np.pi
+            b[:, k] += np.pi if not moved else 0.0  # moved: the camera's turn takes the first joint's half turn
             b[:, k + 1] = mid
             b[:, k + 2] += np.pi
             for v in range(k, k + 3):  # whole turns into the limits (per frame: a twin need not be continuous)
@@ -539,7 +551,11 @@ def _wrist_twins(robot: RobotKinematics, q: np.ndarray, free: np.ndarray) -> lis
             if ((b < robot.lower_v - 1e-9) | (b > robot.upper_v + 1e-9)).any():
                 continue
             qb = robot.from_angles(b)
-            if np.abs(robot.positions(qb) - pos).max() < 1e-6 * size:
+            pb = robot.positions(qb)
+            if moved:  # the one rigid motion that brings the twin's points onto q's, then what it leaves
+                _, R, t = similarity_align(pb, pos, scale=False)
+                pb = pb @ R.T + t
+            if np.abs(pb - pos).max() < 1e-6 * size:
                 out.append(robot.continuous(qb))
     return out
 
