@@ -530,8 +530,6 @@ def fit_joint_angles(
             return side_ok and view_from is not None and (r["down"] < -0.02 if view_from == "above" else
                                                           r["down"] > 0.02)
 
-        # both mirror images: a poor reconstruction may favour the wrong one in 3D
-        step = stage_steps("robot fit: refining on the tracks, candidate", len(candidates))
         def refined(starts, known=()):  # the fits of those starts that are new motions
             new: list[dict] = []
             for c in starts:
@@ -540,6 +538,8 @@ def fit_joint_angles(
                     new.append(r)
             return new
 
+        # both mirror images: a poor reconstruction may favour the wrong one in 3D
+        step = stage_steps("robot fit: refining on the tracks, candidate", len(candidates))
         results = []
         for k, c in enumerate(candidates):
             step(k)

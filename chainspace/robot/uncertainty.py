@@ -526,8 +526,9 @@ def _wrist_twins(robot: RobotKinematics, q: np.ndarray, free: np.ndarray, moved:
     frame 0, the camera's turn standing in for it) that put every point where q does after one rigid
     motion of the whole sequence: with the camera moved alike they show the same image. A shoulder (the
     Panda's joints 1-3 as (a, -b, c + pi): the twin (a + pi, -b, c + pi) turned back half a turn about
-    the base axis, the first joint's value kept where the fit holds it), seen by a static camera. Through a weak camera over its full ranges the Panda was reported observable in
-    such a twin of the truth, joints 2 and 3 94 and 180 degrees off (seed 20 from above)."""
+    the base axis, the first joint's value kept where the fit holds it), seen by a static camera.
+    Through a weak camera over its full ranges the Panda was reported observable in such a twin of the
+    truth, joints 2 and 3 94 and 180 degrees off (seed 20 from above)."""
     a = robot.angles(q)
     pos = robot.positions(q)
     size = max(float(np.ptp(pos.reshape(-1, 3), axis=0).max()), 1e-9)
