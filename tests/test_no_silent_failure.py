@@ -166,6 +166,18 @@ def test_the_pendulum_through_a_pinhole_camera_ends_on_the_truth_or_says_it_does
     assert fit.fps == trial.fps  # kept, for the plots and the viewer to play the motion at
 
 
+def _silent_joints(robot: str, setting: str, seed: int, search_ties: bool = False) -> list[tuple[str, float]]:
+    """The joints reported observable yet more than the full-range benchmark's tolerance off (name,
+    RMS error): ``robot`` filmed by a weak-perspective camera over its full ranges, 30 frames, 1 px
+    (chainspace.bench.full_range, as `bench_full_range.py --camera static` films it), then fitted."""
+    from chainspace.bench.full_range import _film, _fit, full_range_chain, judge_joints
+
+    chain = full_range_chain(robot)
+    trial = _film(chain, setting, "static", 30, seed)
+    return [(j["name"], round(j["error"], 1)) for j in judge_joints(_fit(chain, trial, seed, search_ties), trial)
+            if j["verdict"] == "silent"]
+
+
 @pytest.mark.parametrize("seed", [0, 2])
 def test_a_hanging_arm_through_a_weak_camera_ends_right_or_says_it_does_not_know(seed, example_urdf):
     """The TALOS left arm (two tracked base points on a line that no joint turns about: the camera is fixed
@@ -173,13 +185,8 @@ def test_a_hanging_arm_through_a_weak_camera_ends_right_or_says_it_does_not_know
     camera over its full ranges, from above, as `bench_full_range.py --camera static` films it. Before the
     search of candidates._static_line_starts: seed 0 arm_left_3 175 degrees off (the whole arm turned about
     the line), seed 2 four joints 2-40 degrees off (the base side mirrored in depth), all reported observable."""
-    from chainspace.bench.full_range import _film, _fit, full_range_chain, judge_joints
-
     example_urdf("talos_arm")  # skips cleanly without example-robot-data
-    chain = full_range_chain("talos_arm")
-    trial = _film(chain, "full, above", "static", 30, seed)
-    silent = [(j["name"], round(j["error"], 1)) for j in judge_joints(_fit(chain, trial, seed), trial)
-              if j["verdict"] == "silent"]
+    silent = _silent_joints("talos_arm", "full, above", seed)
     assert not silent, silent
 
 
@@ -188,13 +195,8 @@ def test_the_wider_search_reports_a_basin_two_moves_away(example_urdf):
     The TALOS left arm through a weak camera from below (seed 7): the true motion's basin ties with the
     winner's, one move from a runner-up and two from the winner; before, five joints 2-143 degrees off
     were reported with four of them observable, with or without the search."""
-    from chainspace.bench.full_range import _film, _fit, full_range_chain, judge_joints
-
     example_urdf("talos_arm")
-    chain = full_range_chain("talos_arm")
-    trial = _film(chain, "full, below", "static", 30, 7)
-    silent = [(j["name"], round(j["error"], 1)) for j in judge_joints(_fit(chain, trial, 7, True), trial)
-              if j["verdict"] == "silent"]
+    silent = _silent_joints("talos_arm", "full, below", 7, search_ties=True)
     assert not silent, silent
 
 
@@ -230,11 +232,6 @@ def test_a_weak_camera_fit_reports_the_shoulder_twin_of_its_answer(example_urdf)
     """The Panda over its full ranges through a weak camera from above (seed 20): the fit ended on the
     shoulder twin of the truth (joints 2 and 3 94 and 180 degrees off), the same image once the camera
     turns half a turn about the base axis, and reported both joints observable; now they are flagged."""
-    from chainspace.bench.full_range import _film, _fit, full_range_chain, judge_joints
-
     example_urdf("panda")
-    chain = full_range_chain("panda")
-    trial = _film(chain, "full, above", "static", 30, 20)
-    silent = [(j["name"], round(j["error"], 1)) for j in judge_joints(_fit(chain, trial, 20), trial)
-              if j["verdict"] == "silent"]
+    silent = _silent_joints("panda", "full, above", 20)
     assert not silent, silent
