@@ -104,15 +104,15 @@ def _film(chain: Any, setting: str, camera: str, n_frames: int, seed: int):
     return synthesize(chain, n_frames=n_frames, noise_px=1.0, seed=seed, camera=camera, **SETTINGS[setting])
 
 
-def _fit(chain: Any, trial: Any, seed: int, search_ties: bool = False):
+def _fit(chain: Any, trial: Any, seed: int, search_ties: bool = False, view_from: str = "above"):
     from ..reconstruction.pipeline import reconstruct
     from ..robot.fit import fit_joint_angles
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         rec = reconstruct(trial.tracks, chain, seed=seed)
-        if trial.intrinsics is None:
-            return fit_joint_angles(rec, search_ties=search_ties)
+        if trial.intrinsics is None:  # the side a weak camera stands on is the user's to say: the side filmed from
+            return fit_joint_angles(rec, search_ties=search_ties, view_from=view_from)
         return fit_joint_angles(rec, tracks=trial.tracks, intrinsics=trial.intrinsics, search_ties=search_ties)
 
 
@@ -142,7 +142,7 @@ def run_full_range(robots: Sequence[str] = ROBOTS, settings: Sequence[str] = DEF
                 row = dict(robot=name, setting=setting, seed=seed, reach_mm=1000 * reach)
                 try:
                     trial = _film(chain, setting, camera, n_frames, seed)
-                    fit = _fit(chain, trial, seed, search_ties)
+                    fit = _fit(chain, trial, seed, search_ties, view_from=setting.rsplit(", ", 1)[1])
                     row.update(outcome="fit", joints=judge_joints(fit, trial),
                                error_3d_mm=_error_3d_mm(fit, trial), note=fit.message)
                 except Exception as exc:
@@ -167,7 +167,7 @@ def _note(exc: BaseException) -> str:
 
 
 def _error_3d_mm(fit: Any, trial: Any) -> float:
-    from ..robot.validation import compared_differences, validate
+    from ..robot.validation import validate
 
     rep = validate(fit, trial.q, truth_positions=trial.positions)
     return float("nan") if rep.error_3d_mm is None else float(rep.error_3d_mm)

@@ -45,12 +45,19 @@ def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray,
     exact ties: a jump to another branch is costly, while of two continuous paths that fit alike
     (a wrist's planar tool mirrored in depth) the one nearer the rest pose wins. Returns q (F, nq).
     """
-    F, nq = q.shape
     rng = np.random.default_rng(seed)
     held_q = _held_q(robot, free)  # entries held in a frame keep their value in every start
     rand = _random_q(robot, rng, n_random)
     starts = [q, _seeded(robot, q, free), _seeded(robot, q, free, True)] + [np.where(held_q, q, r) for r in rand] + \
         [np.where(held_q, q, m) for m in _depth_flips(robot, q, view, free)]
+    return _branch_path(robot, starts, target, w, view, free, sigma, step, free_step)
+
+
+def _branch_path(robot: RobotKinematics, starts: list[np.ndarray], target: np.ndarray, w: np.ndarray, view: _View,
+                 free: np.ndarray, sigma: float, step: float = 0.1, free_step: float = 0.15) -> np.ndarray:
+    """The path (F, nq) of :func:`_viterbi_branches` through the per-frame solutions from ``starts``
+    (each (F, nq)): every frame solved from every start, then the cheapest path by dynamic programming."""
+    F, nq = starts[0].shape
     K = len(starts)
     q0 = np.concatenate(starts)
     idx = np.tile(np.arange(F), K)
@@ -170,15 +177,7 @@ def _depth_flips(robot: RobotKinematics, q: np.ndarray, view: _View, free: np.nd
     take the mirrored pose exactly. Random starts rarely land in that basin. (F, nq) each."""
     F = len(q)
     pos = robot.positions(q)
-    n = view.R[view.cam_of][:, 2]  # (F, 3) the camera's depth axis in the base frame
-    index = {name: i for i, name in enumerate(robot.chain.joints)}
-    mirrored = []
-    for b, (parent, _) in enumerate(robot.chain.bones):
-        beyond = robot.chain.D[b] != 0
-        m, depth = _mirrored_beyond(pos, beyond, index[parent], n)
-        if np.abs(depth).max() < 1e-9:
-            continue
-        mirrored.append(m)
+    mirrored = _mirror_targets(robot, pos, view)
     # also the same points reached with the joints from each one on started from either side of the
     # rest pose: the other branches that put every point where it is (a wrist turned half a turn with
     # the next joint mirrored)
@@ -195,6 +194,66 @@ def _depth_flips(robot: RobotKinematics, q: np.ndarray, view: _View, free: np.nd
     qs = _sequence_lm(robot, np.concatenate(starts), np.concatenate(targets), np.ones((K * F, pos.shape[1])), eye,
                       np.tile(free, (K, 1)), np.zeros(7, bool), 30, 1e-8, None)[0]
     return list(qs.reshape(K, F, -1))
+
+
+def _mirror_targets(robot: RobotKinematics, pos: np.ndarray, view: _View) -> list[np.ndarray]:
+    """Per tree link that is not already in the plane facing the camera: the points pos (F, J, 3) with
+    that link and everything beyond it mirrored in depth about its parent point (the view's depth axis)."""
+    n = view.R[view.cam_of][:, 2]  # (F, 3) the camera's depth axis in the base frame
+    index = {name: i for i, name in enumerate(robot.chain.joints)}
+    mirrored = []
+    for b, (parent, _) in enumerate(robot.chain.bones):
+        m, depth = _mirrored_beyond(pos, robot.chain.D[b] != 0, index[parent], n)
+        if np.abs(depth).max() >= 1e-9:
+            mirrored.append(m)
+    return mirrored
+
+
+def _far_depth_flips(robot: RobotKinematics, q: np.ndarray, view: _View, free: np.ndarray) -> list[np.ndarray]:
+    """The depth flips of :func:`_depth_flips` that are poses of the robot far from q (F, nq) in joint
+    space (:func:`_far_poses`). Why: the arm beyond a 7-axis arm's shoulder mirrored in depth is again
+    a pose of the arm, but one that turns the first, third, fifth and seventh joints by up to half a
+    turn, out of reach of IK started from q. Through a weak camera over the Panda's full ranges (seed
+    22 from above) the truth was that mirror, its objective 27 noise variances below the reported
+    motion's, and no candidate reached it."""
+    return _far_poses(robot, q, _mirror_targets(robot, robot.positions(q), view), free)
+
+
+def _far_poses(robot: RobotKinematics, q: np.ndarray, targets: list[np.ndarray], free: np.ndarray,
+               n_samples: int = 5, n_random: int = 24, seed: int = 0) -> list[np.ndarray]:
+    """Per target (F, J, 3) of tracked points in the base frame, the motion (F, nq) that puts every
+    point there (to a thousandth of the robot's reach), wherever it lies in joint space: IK on a few
+    frames from q (F, nq), the two seeds and random configurations; where some start reaches the
+    target in each of those frames, the continuous path through every frame from their solutions
+    (:func:`_branch_path`). Joints free in any frame (``free`` (F, nv)) move in every frame: one held
+    in frame 0 only (seen relative to it) may need the camera's turn. Targets no motion reaches give
+    nothing."""
+    F = len(q)
+    tol = 1e-3 * robot.reach()
+    movable = np.repeat(free.any(0, keepdims=True), F, 0)
+    samples = np.unique(np.linspace(0, F - 1, min(n_samples, F)).round().astype(int))
+    pool = np.vstack([robot.q_seed, robot.q_seed_other, _random_q(robot, np.random.default_rng(seed), n_random)])
+    starts = np.concatenate([np.vstack([q[f], pool]) for f in samples])
+    rows = np.repeat(samples, len(pool) + 1)
+    out = []
+    for m in targets:
+        ones = np.ones(m.shape[:2])
+        qs, _, rn, _, _, _ = _sequence_lm(robot, starts, m[rows], ones[rows], _View.identity(len(rows)),
+                                          movable[rows], np.zeros(7, bool), 40, 1e-10, None)
+        hit = rn.max(1) < tol
+        if not hit.reshape(len(samples), -1).any(1).all():
+            continue  # not a pose of the robot in some frame
+        found: list[np.ndarray] = []
+        for s in qs[hit]:
+            if not any(_same_motion(robot, s, o) for o in found):
+                found.append(s)
+        path = _branch_path(robot, [np.tile(s, (F, 1)) for s in found], m, ones, _View.identity(F), movable, 0.1 * tol)
+        # solved again to the end: the path search stops early, and a pose is scored as it is
+        path, _, rn, _, _, _ = _sequence_lm(robot, path, m, ones, _View.identity(F), movable, np.zeros(7, bool), 30,
+                                            1e-10, None)
+        if rn.max() < tol:
+            out.append(path)
+    return out
 
 
 FACE_ON_DEG = 15.0  # a plane within this angle of face-on is reported as seen face-on

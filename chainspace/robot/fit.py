@@ -66,6 +66,15 @@ variances of the best: a likelihood-ratio test), applies these rules:
   arms): the whole arm beyond the shoulder mirrors exactly, in every frame, and the rest-pose rule
   picks wrongly as often as not. Track a point on the first link's housing, off its axis
   (``extra_frames={"shoulder_marker": ("panda_link1", [0.08, 0, -0.1])}``); the benchmark does.
+* *Mirror images far in joint space.* The mirror image of the whole motion (seen through the
+  mirrored camera), or of the arm beyond a ball-like shoulder, can be a pose of the robot whose joints
+  differ from the fitted ones by up to half a turn (a UR10, its links offset sideways; the Panda
+  beyond its shoulder), which IK started from the fit does not reach. Where the 3D fit of a reflected
+  motion misses its points, and for every link's depth flip when the fit is assessed, that pose is
+  searched for on a few frames from random configurations and joined into one continuous path
+  (``candidates._far_poses``); the flips found are smoothed and scored as the winner was. Where the
+  whole mirror is no pose of the robot, so is the mirror of the arm up to each link (the links beyond
+  it mirrored back: the same image), searched alike and refined from the whole path (a Kinova arm).
 * *Seen again after a long gap.* A joint unseen for long enough to turn half a circle at the branch
   search's step bound (``_LONG_GAP`` frames), then seen again, may come back on any branch, and the
   frame that sees it again may fit a wrong one as well as the true one (a wrist seen in one frame
@@ -193,8 +202,8 @@ from .views import _affine_camera, _align, _camera_view, _looks_down, similarity
 from .solver import _huber, _motion_prior, _noise_sigma, _rms_per_frame, _robust_scale, _sequence_lm
 from .starts import _fit_3d, _initial_camera, _sequential_ik
 from .observability import _fill_unseen, _gauge_directions, _hold, _notes, _structural, _unseen, _weights
-from .candidates import (FACE_ON_DEG, TIE_VARIANCES, _face_on_planes, _frame_ranges, _nearest_rest_branch,
-                         _same_motion, _static_line_starts, _viterbi_reanchored)
+from .candidates import (FACE_ON_DEG, SYMMETRY_MIRROR, TIE_VARIANCES, _face_on_planes, _far_poses, _frame_ranges,
+                         _mirror_targets, _nearest_rest_branch, _same_motion, _static_line_starts, _viterbi_reanchored)
 from .selection import _most_probable, _prefer_rest, view_side_valid
 from .uncertainty import CAMERA_MISFIT_RATIO, assess_fit, camera_misfit, track_jitter
 
@@ -478,7 +487,8 @@ def fit_joint_angles(
             free_prior = _hold(robot, c["q"], blind, g2 if per_frame else c["gauge"], per_frame, never2)[1]
             view = c["camera0"] if "camera0" in c else _camera_view(c["pos"], tracks, w2, per_frame)
             # per-frame IK on the tracks with this camera (robust far from the solution), then all together
-            q = _sequential_ik(robot, tracks, w2, view, free, q[0], c["gauge"])
+            if not c.get("whole_path"):  # a start from its first frame: rough elsewhere
+                q = _sequential_ik(robot, tracks, w2, view, free, q[0], c["gauge"])
             for _ in range(4):  # alternate the closed-form camera(s) with per-frame IK
                 view = _camera_view(robot.positions(q), tracks, w2, per_frame)
                 q, _, _, _, _, it = _sequence_lm(robot, q, tracks, w2, view, free, np.zeros(6, bool), 10, 1e-8,
@@ -568,18 +578,56 @@ def fit_joint_angles(
             return rs, n_tied > 1
 
         results, mirror_tied = order(results)
+        far_found: dict[int, tuple] = {}
+
+        def far_mirrors(r):
+            # r's points mirrored about a vertical plane, as poses wherever they lie in joint space:
+            # whole, and with each link and all beyond it mirrored back in depth under r's camera (the
+            # same image: the mirror of the arm up to that link). Searched once per motion.
+            if id(r) not in far_found:
+                X, S = r["out"][3], SYMMETRY_MIRROR
+                flips = _mirror_targets(robot, X, r["out"][1])
+                far_found[id(r)] = (r, _far_poses(robot, r["out"][0], [X @ S], free_blind),
+                                    _far_poses(robot, r["out"][0], [m @ S for m in flips], free_blind))
+            return far_found[id(r)][1:]
+
         def reflection(r, M):
             # r's motion reflected by M (3 x 3, base frame), fitted in 3D from the refined motion (a far
-            # better start than the reconstruction): a candidate to refine on the tracks
+            # better start than the reconstruction): candidates to refine on the tracks, the first its fit
             nonlocal n_iter
             X_alt = np.einsum("ij,fkj->fki", M, r["out"][3])
             q_a, view_a, it_a = _fit_3d(robot, X_alt, w3, free_blind, transform, max_iter, tol, gauge0)
-            q_a, free_a = _hold(robot, q_a, blind, r["c"]["gauge"], False, unseen3)
-            view_a = _align(robot.positions(q_a), X_alt, w3, transform)
-            q_a, view_a, rn_a, pos_a, conv_a, it_b = _sequence_lm(robot, q_a, X_alt, w3, view_a, free_a,
-                                                                  free_sim, 20, tol, None)
-            n_iter += it_a + it_b
-            return dict(sign=-r["c"]["sign"], q=q_a, pos=pos_a, gauge=r["c"]["gauge"], conv=conv_a)
+            n_iter += it_a
+
+            def fitted(q_s):
+                nonlocal n_iter
+                q_s, free_a = _hold(robot, q_s, blind, r["c"]["gauge"], False, unseen3)
+                view_a = _align(robot.positions(q_s), X_alt, w3, transform)
+                out = _sequence_lm(robot, q_s, X_alt, w3, view_a, free_a, free_sim, 20, tol, None)
+                n_iter += out[5]
+                return out
+
+            def candidate(q_s, pos, conv, **kw):
+                return dict(sign=-r["c"]["sign"], q=q_s, pos=pos, gauge=r["c"]["gauge"], conv=conv, **kw)
+
+            best, partial = fitted(q_a), []
+            if (w3 * best[2]).max() > 1e-3 * robot.reach() and seen_from_wrong_side(r):
+                # X_alt is a robot's motion reflected: where the 3D fit did not reach it and r is seen
+                # from the wrong side (the mirrors of one seen from the right side lose to it), the poses
+                # that take r's points mirrored (every reflection of the points is the mirror about a
+                # vertical plane turned: M times that mirror is a rotation). A UR10 seen from below had
+                # the exact mirror of the winner as its truth, five joints 40-137 degrees away, and was
+                # reported seen from above against the side it was told; a Kinova arm the mirror up to
+                # its wrist (the hand's points at the winner's depths), three joints 11-149 degrees away.
+                whole, partial = far_mirrors(r)
+                for q_s in whole:
+                    far = fitted(q_s)
+                    if (w3 * far[2] ** 2).sum() < (w3 * best[2] ** 2).sum():
+                        best = far
+            # the partial mirrors are whole paths through every frame: refined from all of them, since
+            # the per-frame IK from their first frame drifted onto the hand's other branches (the Kinova)
+            return [candidate(best[0], best[3], best[4])] + [candidate(q_s, robot.positions(q_s), True, whole_path=True)
+                                                             for q_s in partial]
 
         def depth_mirror(r):
             R0 = r["out"][1].R[0] if not per_frame else r["out"][1].R.mean(0)
@@ -592,7 +640,7 @@ def fit_joint_angles(
 
         def reflected_start(r):
             # r's depth mirror image, a start for the smoothed fit (held as the refinement holds)
-            c = reflection(r, depth_mirror(r))
+            c = reflection(r, depth_mirror(r))[0]
             q = _hold(robot, c["q"], blind, c["gauge"], False, unseen2)[0]
             return dict(r, c=c, q=q, free_prior=_hold(robot, q, blind, c["gauge"], False, never2)[1],
                         view=_camera_view(robot.positions(q), tracks, w2, False))
@@ -609,7 +657,8 @@ def fit_joint_angles(
                 reflected.append(r0)
                 stage("robot fit: refining the best fit's two reflections on the tracks (round %d of at most 2)",
                       len(reflected))
-                alts = refined((reflection(r0, M) for M in (depth_mirror(r0), np.diag([1.0, -1.0, 1.0]))), results)
+                alts = refined((c for M in (depth_mirror(r0), np.diag([1.0, -1.0, 1.0])) for c in reflection(r0, M)),
+                               results)
                 results, mirror_tied = order(results + alts)
             if not per_frame:
                 # the camera's freedom about the base's line of tracked points: the best motion turned about

@@ -474,7 +474,7 @@ def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float,
     mirrored it lost by far more than the tie tolerance, and the xArm7's wrist (joint5 127 degrees off,
     the wrong branch fitting the tracks as well as the true one) was reported observable. ``refit``
     False (the default assessment, cheap): the mirrored motions are scored as they are."""
-    from .candidates import _depth_flips, _same_motion
+    from .candidates import _depth_flips, _far_depth_flips, _same_motion
     from .solver import _sequence_lm, _smooth_lm
 
     q, view, delta = winner["out"][0], winner["out"][1], winner["delta"]
@@ -485,29 +485,37 @@ def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float,
     twins = _wrist_twins(robot, q, free)  # exact under any camera: scored as they are
     # exact with the camera moved as the scene is: the winner's own residuals
     moved = [(score(m, winner["out"][2]), {"q": m}) for m in _wrist_twins(robot, q, free, moved=True)]
+
+    def refitted(motions: list[np.ndarray]) -> list[tuple[float, dict]]:
+        """The distinct motions (many links give the same twin) fitted to the tracks under the winner's
+        camera, scored."""
+        distinct: list[np.ndarray] = []
+        for m in motions:
+            if not any(_same_motion(robot, m, o) for o in distinct + [q]):
+                distinct.append(robot.continuous(m))
+        if not distinct:
+            return []
+        F, K = len(q), len(distinct)
+        if prior is None:  # frame by frame under the winner's camera, all twins at once
+            idx = np.tile(np.arange(F), K)
+            qs, _, rn, _, _, _ = _sequence_lm(robot, np.concatenate(distinct), tracks[idx], w[idx], view.take(idx),
+                                              free[idx], np.zeros(view.n_params, bool), 20, 1e-8, delta)
+            qs, rn = qs.reshape(K, F, -1), rn.reshape(K, F, -1)
+        else:  # smoothed as the winner was (a path refitted frame by frame is rough, which the prior charges)
+            ones = np.ones(view.n_params, bool)
+            fits = [_smooth_lm(robot, m, tracks, w, view, free, ones, 20, 1e-8, delta, prior) for m in distinct]
+            qs, rn = np.stack([f[0] for f in fits]), np.stack([f[2] for f in fits])
+        return [(score(qs[k], rn[k]), {"q": qs[k]}) for k in range(K)]
+
     flips = _depth_flips(robot, q, view, free)
+    # far flips are whole other paths, not the winner's points moved: smoothed as the winner was even
+    # here (scored as mirrored, the Panda's truth lost by 211 noise variances; smoothed, it ties)
+    far = _far_depth_flips(robot, q, view, free)
     if not refit:  # scored as mirrored: exact under weak perspective, a few pixels off under a pinhole
-        return moved + [(score(m), {"q": m}) for m in twins + flips]
+        return moved + [(score(m), {"q": m}) for m in twins + flips] + refitted(far)
     # and the best other continuous branch (_other_branch), refined and scored alike
-    flips += [b["q"] for b in _other_branch(robot, winner, tracks, w, free, sigma)]
-    distinct: list[np.ndarray] = []
-    for m in flips:  # many links give the same twin: each is refitted once
-        if not any(_same_motion(robot, m, o) for o in distinct + [q]):
-            distinct.append(robot.continuous(m))
-    exact = moved + [(score(m), {"q": m}) for m in twins]
-    if not distinct:
-        return exact
-    F, K = len(q), len(distinct)
-    if prior is None:  # frame by frame under the winner's camera, all twins at once
-        idx = np.tile(np.arange(F), K)
-        qs, _, rn, _, _, _ = _sequence_lm(robot, np.concatenate(distinct), tracks[idx], w[idx], view.take(idx),
-                                          free[idx], np.zeros(view.n_params, bool), 20, 1e-8, delta)
-        qs, rn = qs.reshape(K, F, -1), rn.reshape(K, F, -1)
-    else:  # smoothed as the winner was (a path refitted frame by frame is rough, which the prior charges)
-        ones = np.ones(view.n_params, bool)
-        fits = [_smooth_lm(robot, m, tracks, w, view, free, ones, 20, 1e-8, delta, prior) for m in distinct]
-        qs, rn = np.stack([f[0] for f in fits]), np.stack([f[2] for f in fits])
-    return exact + [(score(qs[k], rn[k]), {"q": qs[k]}) for k in range(K)]
+    return moved + [(score(m), {"q": m}) for m in twins] + \
+        refitted(flips + far + [b["q"] for b in _other_branch(robot, winner, tracks, w, free, sigma)])
 
 
 def _wrist_twins(robot: RobotKinematics, q: np.ndarray, free: np.ndarray, moved: bool = False) -> list[np.ndarray]:
