@@ -522,8 +522,9 @@ def _wrist_twins(robot: RobotKinematics, q: np.ndarray, free: np.ndarray, moved:
     """Motions (F, nq) that put every tracked point exactly where q (F, nq) does, by the Euler-angle
     twin of three successive turning joints: (a + pi, -b, c + pi) or (a + pi, pi - b, c + pi) (ZYZ
     and ZYX-like axes), each joint moved by whole turns into its limits. Only twins within the limits,
-    moving only free joints (``free`` (F, nv)), whose points match q's to 1e-6 of the robot's size in
-    every frame are returned.
+    moving only free joints (``free`` (F, nv)), whose points match q's to 1e-4 of the robot's size in
+    every frame are returned (URDFs round their angles: the xArm7's -1.5708 for -pi/2 leaves its
+    shoulder twin 1.3e-6 of its size apart, and a weak-camera fit of the twin went unreported).
 
     Why: a wrist whose tracked points lie on its axes (the Kinova j2s6s200's, the wrist of most 6-axis
     arms) shows the same points in both, in every frame and under any camera; the depth flips and the
@@ -543,14 +544,19 @@ def _wrist_twins(robot: RobotKinematics, q: np.ndarray, free: np.ndarray, moved:
     relative = ~free[0] & free[1:].all(0) if len(q) > 1 else np.zeros(robot.nv, bool)
     out: list[np.ndarray] = []
     for k in range(robot.nv - 2):
-        held = free[:, k:k + 3].all() if not moved else relative[k] and free[:, k + 1:k + 3].all()
+        # a third joint held in every frame (no tracked point moves with it) keeps its value: its half
+        # turn would move nothing (the xArm7's wrist, joint7 unseen, ended 180 and 163 degrees off on
+        # joints 5 and 6, unreported)
+        last_blind = not free[:, k + 2].any()
+        held = (free[:, k:k + 2].all() if not moved else relative[k] and free[:, k + 1].all()) and \
+            (free[:, k + 2].all() or last_blind)
         if not (robot.turns_v[k:k + 3].all() and held):
             continue
-        for mid in (-a[:, k + 1], np.pi - a[:, k + 1]):
+        for offset in _twin_offsets(robot, a[0], k, last_blind, 1e-4 * size):
             b = a.copy()
             b[:, k] += np.pi if not moved else 0.0  # moved: the camera's turn takes the first joint's half turn
-            b[:, k + 1] = mid
-            b[:, k + 2] += np.pi
+            b[:, k + 1] = offset - a[:, k + 1]
+            b[:, k + 2] += 0.0 if last_blind else np.pi
             for v in range(k, k + 3):  # whole turns into the limits (per frame: a twin need not be continuous)
                 lo, hi = robot.lower_v[v], robot.upper_v[v]
                 if np.isfinite(lo):
@@ -564,9 +570,47 @@ def _wrist_twins(robot: RobotKinematics, q: np.ndarray, free: np.ndarray, moved:
             if moved:  # the one rigid motion that brings the twin's points onto q's, then what it leaves
                 _, R, t = similarity_align(pb, pos, scale=False)
                 pb = pb @ R.T + t
-            if np.abs(pb - pos).max() < 1e-6 * size:
+            if np.abs(pb - pos).max() < 1e-4 * size:
                 out.append(robot.continuous(qb))
     return out
+
+
+def _twin_offsets(robot: RobotKinematics, a0: np.ndarray, k: int, last_blind: bool, tol: float) -> list[float]:
+    """The constants d (rad) for which the middle joint of the triple k, k+1, k+2 at d - b, the outer two
+    turned by half a turn (the last kept where ``last_blind``), puts the tracked points of the pose a0
+    (nv,) back up to one rigid motion (within ``tol`` metres). Where the outer axes meet at b = 0, d is
+    0 or pi; where they line up at b0, 2 b0 (a wrist whose middle joint's zero is bent: the xArm7's
+    joint6, whose twin ended 163 degrees off unreported when only 0 and pi were tried)."""
+    pos = robot.positions(robot.from_angles(a0[None]))[0]
+
+    def misfit(d: np.ndarray) -> np.ndarray:
+        b = np.repeat(a0[None], len(d), 0)
+        b[:, k] += np.pi
+        b[:, k + 1] = d - a0[k + 1]
+        b[:, k + 2] += 0.0 if last_blind else np.pi
+        return _rigid_misfit(robot.positions(robot.from_angles(b)), pos)
+
+    grid = np.linspace(-np.pi, np.pi, 360, endpoint=False)
+    r = misfit(grid)
+    out = []
+    for d in grid[(r <= np.roll(r, 1)) & (r <= np.roll(r, -1))]:  # each local minimum, refined tenfold 4 times
+        for step in np.radians([1.0, 0.1, 0.01, 0.001]):
+            near = d + np.linspace(-step, step, 21)
+            d = near[np.argmin(misfit(near))]
+        exact = [e for e in (0.0, np.pi, -np.pi) if abs(d - e) < 1e-4]
+        d = exact[0] if exact else d  # the textbook twins exactly
+        if misfit(np.array([d]))[0] < tol and not any(abs(d - o) < 1e-4 for o in out):
+            out.append(float(d))
+    return out
+
+
+def _rigid_misfit(P: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Per point set P[n] (N, J, 3): the largest distance (m) from X (J, 3) after the rigid motion that
+    best brings P[n] onto X (Kabsch, batched)."""
+    A, B = P - P.mean(1, keepdims=True), X - X.mean(0)
+    U, _, Vt = np.linalg.svd(np.einsum("nji,jk->nik", A, B))
+    U[..., :, -1] *= np.sign(np.linalg.det(U @ Vt))[:, None]  # a rotation, not a reflection
+    return np.linalg.norm(A @ (U @ Vt) - B, axis=-1).max(1)
 
 
 SHAKE_DEG = 20.0  # each observable joint's path shifted by this much either way: starts for other local minima
