@@ -520,8 +520,9 @@ def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float,
 
 def _wrist_twins(robot: RobotKinematics, q: np.ndarray, free: np.ndarray, moved: bool = False) -> list[np.ndarray]:
     """Motions (F, nq) that put every tracked point exactly where q (F, nq) does, by the Euler-angle
-    twin of three successive turning joints: (a + pi, -b, c + pi) or (a + pi, pi - b, c + pi) (ZYZ
-    and ZYX-like axes), each joint moved by whole turns into its limits. Only twins within the limits,
+    twin of three successive turning joints: (a + pi, d - b, c + pi) with d = 0 or pi (ZYZ and ZYX-like
+    axes) or twice the middle angle at which the outer axes line up (:func:`_twin_offsets`), each joint
+    moved by whole turns into its limits. Only twins within the limits,
     moving only free joints (``free`` (F, nv)), whose points match q's to 1e-4 of the robot's size in
     every frame are returned (URDFs round their angles: the xArm7's -1.5708 for -pi/2 leaves its
     shoulder twin 1.3e-6 of its size apart, and a weak-camera fit of the twin went unreported).
