@@ -578,22 +578,25 @@ def fit_joint_angles(
             return rs, n_tied > 1
 
         results, mirror_tied = order(results)
-        far_found: dict[int, tuple] = {}
+        far_found: dict[tuple[int, bool], tuple] = {}
 
-        def far_mirrors(r):
-            # r's points mirrored about a vertical plane, as poses wherever they lie in joint space:
-            # whole, and with each link and all beyond it mirrored back in depth under r's camera (the
-            # same image: the mirror of the arm up to that link). Searched once per motion.
-            if id(r) not in far_found:
-                X, S = r["out"][3], SYMMETRY_MIRROR
-                flips = _mirror_targets(robot, X, r["out"][1])
-                far_found[id(r)] = (r, _far_poses(robot, r["out"][0], [X @ S], free_blind),
-                                    _far_poses(robot, r["out"][0], [m @ S for m in flips], free_blind))
-            return far_found[id(r)][1:]
+        def far_mirrors(r, up_to_links):
+            # r's points mirrored about a vertical plane, as poses wherever they lie in joint space: whole,
+            # or (up_to_links) with each link and all beyond it mirrored back in depth under r's camera
+            # (the same image: the mirror of the arm up to that link). Searched once per motion (r kept
+            # with its result, so that its id is not reused).
+            key = (id(r), up_to_links)
+            if key not in far_found:
+                X = r["out"][3]
+                targets = _mirror_targets(robot, X, r["out"][1]) if up_to_links else [X]
+                far_found[key] = (r, _far_poses(robot, r["out"][0], [m @ SYMMETRY_MIRROR for m in targets],
+                                                free_blind))
+            return far_found[key][1]
 
-        def reflection(r, M):
+        def reflection(r, M, up_to_links=True):
             # r's motion reflected by M (3 x 3, base frame), fitted in 3D from the refined motion (a far
             # better start than the reconstruction): candidates to refine on the tracks, the first its fit
+            # (the mirrors up to each link after it only with ``up_to_links``)
             nonlocal n_iter
             X_alt = np.einsum("ij,fkj->fki", M, r["out"][3])
             q_a, view_a, it_a = _fit_3d(robot, X_alt, w3, free_blind, transform, max_iter, tol, gauge0)
@@ -619,8 +622,8 @@ def fit_joint_angles(
                 # the exact mirror of the winner as its truth, five joints 40-137 degrees away, and was
                 # reported seen from above against the side it was told; a Kinova arm the mirror up to
                 # its wrist (the hand's points at the winner's depths), three joints 11-149 degrees away.
-                whole, partial = far_mirrors(r)
-                for q_s in whole:
+                partial = far_mirrors(r, True) if up_to_links else []
+                for q_s in far_mirrors(r, False):
                     far = fitted(q_s)
                     if (w3 * far[2] ** 2).sum() < (w3 * best[2] ** 2).sum():
                         best = far
@@ -640,7 +643,7 @@ def fit_joint_angles(
 
         def reflected_start(r):
             # r's depth mirror image, a start for the smoothed fit (held as the refinement holds)
-            c = reflection(r, depth_mirror(r))[0]
+            c = reflection(r, depth_mirror(r), up_to_links=False)[0]
             q = _hold(robot, c["q"], blind, c["gauge"], False, unseen2)[0]
             return dict(r, c=c, q=q, free_prior=_hold(robot, q, blind, c["gauge"], False, never2)[1],
                         view=_camera_view(robot.positions(q), tracks, w2, False))

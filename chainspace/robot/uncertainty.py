@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..metrics import procrustes_align
 from .kinematics import RobotKinematics
 from .solver import _huber, _noise_sigma, _normal_equations
 from .views import similarity_align
@@ -589,7 +590,8 @@ def _twin_offsets(robot: RobotKinematics, a0: np.ndarray, k: int, last_blind: bo
         b[:, k] += np.pi
         b[:, k + 1] = d - a0[k + 1]
         b[:, k + 2] += 0.0 if last_blind else np.pi
-        return _rigid_misfit(robot.positions(robot.from_angles(b)), pos)
+        pb = robot.positions(robot.from_angles(b))
+        return np.linalg.norm(procrustes_align(pb, np.broadcast_to(pos, pb.shape)) - pos, axis=-1).max(1)
 
     grid = np.linspace(-np.pi, np.pi, 360, endpoint=False)
     r = misfit(grid)
@@ -603,15 +605,6 @@ def _twin_offsets(robot: RobotKinematics, a0: np.ndarray, k: int, last_blind: bo
         if misfit(np.array([d]))[0] < tol and not any(abs(d - o) < 1e-4 for o in out):
             out.append(float(d))
     return out
-
-
-def _rigid_misfit(P: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """Per point set P[n] (N, J, 3): the largest distance (m) from X (J, 3) after the rigid motion that
-    best brings P[n] onto X (Kabsch, batched)."""
-    A, B = P - P.mean(1, keepdims=True), X - X.mean(0)
-    U, _, Vt = np.linalg.svd(np.einsum("nji,jk->nik", A, B))
-    U[..., :, -1] *= np.sign(np.linalg.det(U @ Vt))[:, None]  # a rotation, not a reflection
-    return np.linalg.norm(A @ (U @ Vt) - B, axis=-1).max(1)
 
 
 SHAKE_DEG = 20.0  # each observable joint's path shifted by this much either way: starts for other local minima
