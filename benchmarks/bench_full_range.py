@@ -3,6 +3,7 @@
     python benchmarks/bench_full_range.py                          # 16 robots x (above, below), 60 frames
     python benchmarks/bench_full_range.py --robots ur10 panda --frames 30
     python benchmarks/bench_full_range.py --settings "singular, above" --camera static
+    python benchmarks/bench_full_range.py --camera static --frames 30 --first-seed 28 --seeds 2  # held-out seeds
     python benchmarks/bench_full_range.py --quick                  # 2 robots x 1 setting, 20 frames
 
 Prints one markdown table, then every silent failure, every flagged joint with its reason and every run
@@ -27,7 +28,8 @@ def main(argv=None) -> int:
                    help="pinhole (default: a phone or an industrial camera, intrinsics given to the fit) or "
                         "static (weak perspective)")
     p.add_argument("--frames", type=int, default=None, help="frames per run (default 60; --quick 20)")
-    p.add_argument("--seeds", type=int, default=1)
+    p.add_argument("--seeds", type=int, default=1, help="runs per robot and setting (default 1)")
+    p.add_argument("--first-seed", type=int, default=0, help="the first run's seed (default 0)")
     p.add_argument("--search-ties", action="store_true",
                    help="fit_joint_angles(search_ties=True): also search beyond the fit's candidates (slow)")
     p.add_argument("--quick", action="store_true", help="milling arm and UR5, full range from above, 20 frames")
@@ -48,6 +50,7 @@ def main(argv=None) -> int:
         runs = [r for f in a.from_json for r in json.loads(Path(f).read_text())]
     else:
         runs = run_full_range(robots, settings, camera=a.camera, n_frames=frames, seeds=a.seeds,
+                              first_seed=a.first_seed,
                               search_ties=a.search_ties,
                               progress=lambda m: print(m, file=sys.stderr, flush=True),
                               on_run=save if a.json else None)

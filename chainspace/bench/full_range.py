@@ -117,11 +117,12 @@ def _fit(chain: Any, trial: Any, seed: int, search_ties: bool = False, view_from
 
 
 def run_full_range(robots: Sequence[str] = ROBOTS, settings: Sequence[str] = DEFAULT_SETTINGS, *,
-                   camera: str = "pinhole", n_frames: int = 60, seeds: int = 1, search_ties: bool = False,
-                   progress: Callable[[str], None] | None = None,
+                   camera: str = "pinhole", n_frames: int = 60, seeds: int = 1, first_seed: int = 0,
+                   search_ties: bool = False, progress: Callable[[str], None] | None = None,
                    on_run: Callable[[list[dict[str, Any]]], None] | None = None) -> list[dict[str, Any]]:
     """One row per run (robot, setting, seed): robot, setting, seed, outcome ("fit", "refused",
     "crashed"), joints (see :func:`judge_joints`; empty without a fit), error_3d_mm, seconds, note.
+    Seeds ``first_seed`` to ``first_seed + seeds - 1`` (seeds set aside while tuning stay reachable).
     ``on_run(runs)`` is called after every run with the runs so far (to save them as they come)."""
     from ..robot.kinematics import RobotKinematics
 
@@ -132,12 +133,12 @@ def run_full_range(robots: Sequence[str] = ROBOTS, settings: Sequence[str] = DEF
             reach = RobotKinematics(chain.metadata["urdf_path"], chain).reach()
         except Exception as exc:  # the robot cannot even be loaded: every run of it counts as failed
             for setting in settings:
-                for seed in range(seeds):
+                for seed in range(first_seed, first_seed + seeds):
                     runs.append(dict(robot=name, setting=setting, seed=seed, outcome=_outcome(exc), joints=[],
                                      error_3d_mm=np.nan, reach_mm=np.nan, seconds=0.0, note=_note(exc)))
             continue
         for setting in settings:
-            for seed in range(seeds):
+            for seed in range(first_seed, first_seed + seeds):
                 t0 = time.perf_counter()
                 row = dict(robot=name, setting=setting, seed=seed, reach_mm=1000 * reach)
                 try:
