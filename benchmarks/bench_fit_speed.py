@@ -4,11 +4,13 @@
     python benchmarks/bench_fit_speed.py --robots UR10 --frames 100
     python benchmarks/bench_fit_speed.py --robots UR10 --frames 100 --pinhole  # a pinhole camera, K known
     python benchmarks/bench_fit_speed.py --robots UR10 --pinhole --unknown     # ... fitted with perspective=True
+    python benchmarks/bench_fit_speed.py --threads 1                           # the compiled solver on one thread
 
 Per robot: one synthetic trial (chainspace.synthesize, seed 0), reconstructed from its tracks, then
 fit_joint_angles timed alone (the reconstruction is not counted). Frames per second are given on the
 wall clock and on the process's CPU time (on a shared machine the wall clock also counts the other
-processes' turns); targets (issue 19): >= 30 frames/s for the 6-axis arm, >= 10 for the 7-axis arms.
+processes' turns; with more than one thread (--threads) the CPU time also counts every thread's);
+targets (issue 19): >= 30 frames/s for the 6-axis arm, >= 10 for the 7-axis arms.
 Accuracy as in benchmarks/bench_robots.py: the worst judged joint's RMS (degrees) and the fitted
 robot's mean 3D error (mm). Stages (seconds, wall): the 3D fit, the refinement of the candidate motions
 on the tracks, the smoothed choice among them, and the sequence-wide branch search (Viterbi passes on
@@ -18,6 +20,7 @@ Prints one markdown table.
 """
 
 import argparse
+import os
 import sys
 import time
 import warnings
@@ -31,6 +34,9 @@ def run(name: str, n_frames: int, noise: float, seed: int, pinhole: bool = False
     from chainspace.robot.fit import fit_joint_angles
     from chainspace.synthetic.robot import synthesize
 
+    from chainspace.robot.compiled import compile_now
+
+    compile_now()  # the compiled solver's one-off compilation after an install is not a fit's time
     chain = robot_chain(name)
     # pinhole: synthesize's default camera (a real lens at its distance), fitted with its intrinsics
     camera = {} if pinhole else {"camera": "static"}
@@ -58,8 +64,14 @@ def main(argv=None) -> int:
                    help="a pinhole camera (synthesize's default), fitted with its intrinsics known")
     p.add_argument("--unknown", action="store_true",
                    help="fit with perspective=True (focal length and principal point unknown) instead")
+    p.add_argument("--threads", type=int, default=None,
+                   help="threads of the compiled solver (sets CHAINSPACE_THREADS; default: the usable cores)")
     p.add_argument("--quick", action="store_true", help="the milling arm on 30 frames (a smoke run)")
     a = p.parse_args(argv)
+    if a.threads is not None:
+        if a.threads < 1:
+            p.error(f"--threads must be a positive number, not {a.threads}")
+        os.environ["CHAINSPACE_THREADS"] = str(a.threads)
     if a.quick:
         a.robots, a.frames = ["milling arm"], 30
     rows = []
@@ -80,8 +92,10 @@ def main(argv=None) -> int:
     camera = ("static pinhole camera" if a.pinhole else "static weak-perspective camera") + (
         ", fitted with perspective=True (focal and principal point unknown)" if a.unknown else
         ", intrinsics known" if a.pinhole else "")
+    from chainspace.robot.compiled import threads
+
     print(f"\n{camera}, {a.noise:g} px noise, seed {a.seed}; fit_joint_angles alone (reconstruction not counted); "
-          "stages in wall-clock seconds.")
+          f"stages in wall-clock seconds; compiled solver on {threads()} thread(s).")
     return 0
 
 

@@ -538,8 +538,9 @@ def _client(scheduler: str | Any | None, n_workers: int | None) -> Iterator[Any]
         if method == "spawn" and _use_forkserver():
             method = "forkserver"
         with dask.config.set({"distributed.worker.multiprocessing-method": method}):
+            # one worker per core: each worker's compiled robot solver on one thread, not on every core
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                                   silence_logs=logging.ERROR)
+                                   silence_logs=logging.ERROR, env={"CHAINSPACE_THREADS": "1"})
         try:
             with Client(cluster) as client:
                 yield client

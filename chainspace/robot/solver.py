@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .compiled import CompiledModel, run_rows
 from .kinematics import RobotKinematics
-from .views import _View
+from .views import _PinholeView, _View
 
 
 # Fewest rows for which the solver looks for rows that repeat or meet: below it (the sequential IK's
@@ -210,7 +211,8 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
     frame) each frame keeps its own damping and accepts its own steps, and converged frames drop out.
     free (F, nv) / free_view (3 + 1 + D,) mask the directions allowed to move; a robust Huber loss
     (IRLS) with threshold delta (None: squares). Returns (q, view, residual norms (F, J), base-frame
-    positions (F, J, 3), converged (F,), iterations).
+    positions (F, J, 3), converged (F,), iterations). With the view held, the rows are solved in
+    compiled code where it covers the robot and view (:mod:`chainspace.robot.compiled`): the same steps.
     """
     F, J, D = target.shape
     nv, nc = robot.nv, view.n_params
@@ -228,6 +230,9 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
         problem = _row_groups(key[:, q.shape[1]:], ordered=False)[1]
     else:
         problem = None
+    model = CompiledModel.of(robot) if not free_view.any() and type(view) in (_View, _PinholeView) else None
+    if model is not None:
+        return _independent_rows(model, q, tz, w, view, free, max_iter, tol, delta, problem)
     follow = np.arange(F)  # a row that met another row of the same problem follows it from there on
     eye_q, eye_c = np.eye(nv), np.eye(nc)
     fixed_q, fixed_c = (~free).astype(float), (~free_view).astype(float)
@@ -311,14 +316,8 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
             active[a[~better][lam[a[~better]] > 1e10]] = False
         elif done.all():
             active[:] = False
-        if problem is not None and it in (3, 6, 10, 15, 21):
-            # starts of one problem that have met (within a micro-radian) go on as one: a branch
-            # search's many starts fall into a few basins
-            live = np.flatnonzero(active)
-            first, inv = _row_groups(np.column_stack([problem[live], np.round(q[live], 6)]), ordered=False)
-            lead = live[first][inv]
-            follow[live] = lead
-            active[live[lead != live]] = False
+        if problem is not None and it in MERGE_AT:
+            _merge_met(problem, q, active, follow)
         on = better & active[a]  # rows that took a step and go on: their Jacobians at the new q
         if on.any():
             jac[a[on]] = robot.jacobians_of(pl_t, slice(None) if on.all() else np.flatnonzero(on))
@@ -329,6 +328,57 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
             follow = follow[follow]
         return q[follow], view, np.linalg.norm(res, axis=-1)[follow], pos[follow], (~active)[follow], it
     return q, view, np.linalg.norm(res, axis=-1), pos, ~active, it
+
+
+# iterations after which starts of one problem that have met go on as one (_sequence_lm, _independent_rows)
+MERGE_AT = (3, 6, 10, 15, 21)
+
+
+def _merge_met(problem: np.ndarray, q: np.ndarray, active: np.ndarray, follow: np.ndarray) -> None:
+    """Starts of one problem that have met (within a micro-radian) go on as one, in place: a branch
+    search's many starts fall into a few basins. The first of each group leads, the others follow it
+    (``follow``) and stop (``active``)."""
+    live = np.flatnonzero(active)
+    first, inv = _row_groups(np.column_stack([problem[live], np.round(q[live], 6)]), ordered=False)
+    lead = live[first][inv]
+    follow[live] = lead
+    active[live[lead != live]] = False
+
+
+def _independent_rows(model: CompiledModel, q: np.ndarray, tz: np.ndarray, w: np.ndarray, view: _View,
+                      free: np.ndarray, max_iter: int, tol: float, delta: float | None,
+                      problem: np.ndarray | None):
+    """:func:`_sequence_lm` with the view held, its rows independent, in compiled code
+    (:func:`chainspace.robot.compiled.lm_rows`) between the iterations at which met starts merge. Same
+    returns."""
+    F, J, D = tz.shape
+    q = np.array(q, dtype=float, order="C")
+    pinhole = isinstance(view, _PinholeView)
+    if pinhole:
+        M, T = (np.ascontiguousarray(np.broadcast_to(a[0], (F,) + a.shape[1:])) for a in (view.R, view.t))
+        f, cxy = float(view.f), np.asarray(view.c, float)
+    else:
+        M, T = np.ascontiguousarray(view.matrices()), np.ascontiguousarray(view.T[view.cam_of])
+        f, cxy = 1.0, np.zeros(2)
+    lam, active, cost = np.full(F, 1e-4), np.ones(F, bool), np.zeros(F)
+    last, rn, pos = np.zeros(F, np.int64), np.empty((F, J)), np.empty((F, J, 3))
+    follow = np.arange(F)
+    tz, w, free = (np.ascontiguousarray(a, dtype=t) for a, t in ((tz, float), (w, float), (free, bool)))
+    start = 1
+    for stop in [m for m in MERGE_AT if m < max_iter] + [max_iter]:
+        run_rows(q, tz, w, M, T, pinhole, f, cxy, free, -1.0 if delta is None else float(delta), float(tol), start,
+                 stop, lam, active, cost, last, rn, pos, model.args())
+        if not active.any():
+            break
+        if problem is not None and stop in MERGE_AT:
+            was = active.copy()
+            _merge_met(problem, q, active, follow)
+            last[was & ~active] = stop  # the rows that now follow another stopped here
+        start = stop + 1
+    it = max_iter if active.any() else int(last.max())
+    while not np.array_equal(follow[follow], follow):
+        follow = follow[follow]
+    return q[follow], view, rn[follow], pos[follow], (~active)[follow], it
 
 
 def _rms_per_frame(rn: np.ndarray, w: np.ndarray) -> np.ndarray:

@@ -1,0 +1,388 @@
+"""The solver's most frequent problem compiled (numba): Levenberg-Marquardt on many independent rows, each
+one configuration's joint angles against its own target under a held view.
+
+Why: the branch search, the depth flips and the sequential IK solve thousands of small problems (one per
+frame and start) a few dozen times per fit; in numpy each step of all of them took some forty array
+operations of a few floats per row, about 5 microseconds a row and step, most of a fit's time (issue 19).
+Here each row runs its own loop over the joints, its kinematics and its small normal equations in compiled
+code (about 1 microsecond a row and step for a 6-axis arm), and the rows are shared among threads.
+
+The steps are those of :func:`chainspace.robot.solver._sequence_lm` (same damping, same stopping rules, the
+same iterations at which starts that met are merged), its numbers the same to rounding; rounding can send a
+row elsewhere along a direction its target leaves flat, at the same cost. Covered: the batched kinematics
+(:class:`chainspace.robot.kinematics._BatchedKinematics`: revolute, continuous, prismatic and mimic joints)
+seen through a weak-perspective or 3D view (:class:`chainspace.robot.views._View`) or a pinhole camera
+(:class:`chainspace.robot.views._PinholeView`). Anything else, and everything where numba cannot be
+imported, stays with the numpy solver.
+
+Compiled on first use and cached on disk (numba's ``cache=True``): the first fit after an install spends
+some seconds compiling. ``CHAINSPACE_THREADS`` sets the number of threads (default: the usable cores).
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from ..errors import ChainspaceError
+
+try:  # pragma: no cover - numba is a dependency; the numpy solver is the fallback where it cannot load
+    import numba
+except ImportError:  # pragma: no cover
+    numba = None
+
+FIXED, REVOLUTE, PRISMATIC, CONTINUOUS = 0, 1, 2, 3
+
+
+class CompiledModel:
+    """The batched kinematics of a :class:`~chainspace.robot.kinematics.RobotKinematics` as flat arrays
+    for the compiled solver: the placed joints in order, their parents, placements in the parent joint's
+    frame (rotation, translation), kind, axis, configuration index, scaling and offset; each tracked
+    point's joint and place in it; which velocity columns move which point; the joint limits."""
+
+    def __init__(self, robot) -> None:
+        b = robot._batch
+        kinds = {"fixed": FIXED, "revolute": REVOLUTE, "prismatic": PRISMATIC, "continuous": CONTINUOUS}
+        self.joints = np.array(b.joints, np.int64)
+        self.parents = np.asarray(b.parents, np.int64)
+        self.Mr = np.ascontiguousarray(b.M[:, :3, :3], dtype=float)
+        self.Mt = np.ascontiguousarray(b.M[:, :3, 3], dtype=float)
+        self.kind = np.array([kinds[k] for k in b.kind], np.int64)
+        self.axis = np.ascontiguousarray(b.axis, dtype=float)
+        self.MrK, self.MrKK = self.Mr @ b.K, self.Mr @ b.KK  # Rodrigues' terms, in the parent's axes
+        self.idx_q, self.column = np.asarray(b.idx_q, np.int64), np.asarray(b.column_of, np.int64)
+        self.scaling, self.offset = np.asarray(b.scaling, float), np.asarray(b.offset, float)
+        self.point_joint = np.asarray(robot._parent_joint, np.int64)
+        self.in_parent = np.ascontiguousarray(robot._in_parent[:, :3], dtype=float)
+        self.carried = np.ascontiguousarray(robot._carried_by)
+        self.limited = np.asarray(robot.limited)
+        self.lower, self.upper = np.asarray(robot.lower, float), np.asarray(robot.upper, float)
+        # each Jacobian column's velocity (a mimic's folds onto its leader's), each velocity's first
+        # configuration entry, and whether that is a continuous joint's (cos, sin) pair
+        self.velocity = np.argmax(robot._fold, axis=1).astype(np.int64)
+        self.q_of_v = np.argmax(robot._qv, axis=0).astype(np.int64)
+        self.pair = np.asarray(robot.continuous_v)
+
+    @staticmethod
+    def of(robot) -> "CompiledModel | None":
+        """The compiled model of ``robot``, made once and kept on it; None where the compiled solver does
+        not cover it: no numba, kinematics looped over Pinocchio, or a joint other than one turning or
+        sliding axis (each Jacobian column must move one velocity, each velocity be a 1-dof joint's
+        entry or a continuous joint's (cos, sin) pair)."""
+        if "_compiled" not in robot.__dict__:
+            fold, qv = robot._fold, robot._qv
+            ok = numba is not None and robot._batch is not None and ((fold != 0).sum(1) == 1).all() and \
+                (fold.max(1) == 1).all() and np.array_equal(qv.sum(0), 1 + robot.continuous_v) and \
+                (qv.sum(1) == 1).all()
+            robot._compiled = CompiledModel(robot) if ok else None
+        return robot._compiled
+
+    def args(self) -> tuple:
+        return (self.joints, self.parents, self.Mr, self.Mt, self.kind, self.axis, self.MrK, self.MrKK, self.idx_q,
+                self.column, self.scaling, self.offset, self.point_joint, self.in_parent, self.carried, self.limited,
+                self.lower, self.upper, self.velocity, self.q_of_v, self.pair)
+
+
+def _njit(f):
+    # error_model='numpy': a division by zero gives inf as numpy's does, without a check in every loop
+    return numba.njit(cache=True, nogil=True, error_model="numpy")(f) if numba is not None else f
+
+
+@_njit
+def _place(q, joints, parents, Mr, Mt, kind, axis, MrK, MrKK, idx_q, scaling, offset, R, p):
+    """World rotations R (njoints, 3, 3) and origins p (njoints, 3) of the placed joints at q (nq,),
+    written in place (joint 0, the universe, is the identity); MrK, MrKK: each joint's placement rotation
+    times its axis's cross-product matrix K and K^2."""
+    E = np.empty((3, 3))  # the joint's placement in its parent, times its own motion
+    for j in joints:
+        a = parents[j]
+        if kind[j] == REVOLUTE or kind[j] == CONTINUOUS:
+            if kind[j] == REVOLUTE:
+                th = scaling[j] * q[idx_q[j]] + offset[j]
+                c, s = np.cos(th), np.sin(th)
+            else:
+                c, s = q[idx_q[j]], q[idx_q[j] + 1]
+            for i in range(3):  # Mr (I + s K + (1 - c) K^2): Rodrigues about the joint's axis
+                for k in range(3):
+                    E[i, k] = Mr[j, i, k] + s * MrK[j, i, k] + (1.0 - c) * MrKK[j, i, k]
+        else:
+            E[:] = Mr[j]
+        for i in range(3):
+            p[j, i] = p[a, i] + R[a, i, 0] * Mt[j, 0] + R[a, i, 1] * Mt[j, 1] + R[a, i, 2] * Mt[j, 2]
+            for k in range(3):
+                R[j, i, k] = R[a, i, 0] * E[0, k] + R[a, i, 1] * E[1, k] + R[a, i, 2] * E[2, k]
+        if kind[j] == PRISMATIC:
+            d = scaling[j] * q[idx_q[j]] + offset[j]
+            for i in range(3):
+                p[j, i] += d * (R[j, i, 0] * axis[j, 0] + R[j, i, 1] * axis[j, 1] + R[j, i, 2] * axis[j, 2])
+
+
+@_njit
+def _points(R, p, point_joint, in_parent, pos):
+    """The chain's points pos (J, 3), in place, from the joints' placements."""
+    for k in range(len(point_joint)):
+        j = point_joint[k]
+        for i in range(3):
+            pos[k, i] = p[j, i] + R[j, i, 0] * in_parent[k, 0] + R[j, i, 1] * in_parent[k, 1] + \
+                R[j, i, 2] * in_parent[k, 2]
+
+
+@_njit
+def _predict(M, T, pinhole, f, cxy, x0, x1, x2, i):
+    """Coordinate i of a point's prediction: the weak view's s R[:D] = M, T; or the pinhole camera's rotation M
+    (3, 3), translation T (3,), focal f and principal point cxy (a depth within a nanometre of 0 held there)."""
+    if not pinhole:
+        return M[i, 0] * x0 + M[i, 1] * x1 + M[i, 2] * x2 + T[i]
+    z = M[2, 0] * x0 + M[2, 1] * x1 + M[2, 2] * x2 + T[2]
+    z = z if abs(z) > 1e-9 else 1e-9
+    return f * (M[i, 0] * x0 + M[i, 1] * x1 + M[i, 2] * x2 + T[i]) / z + cxy[i]
+
+
+@_njit
+def _evaluate(q, tz, w, M, T, pinhole, f, cxy, delta, model, R, p, pos, res):
+    """Residuals res (J, D) of q (nq,) under the view (:func:`_predict`), in place, and the robust cost
+    sum_j w_j rho(|res_j|) (plain squares for delta < 0)."""
+    joints, parents, Mr, Mt, kind, axis, K, KK, idx_q, column, scaling, offset, point_joint, in_parent = model[:14]
+    _place(q, joints, parents, Mr, Mt, kind, axis, K, KK, idx_q, scaling, offset, R, p)
+    _points(R, p, point_joint, in_parent, pos)
+    D = tz.shape[1]
+    cost = 0.0
+    for k in range(len(pos)):
+        n2 = 0.0
+        for i in range(D):
+            res[k, i] = _predict(M, T, pinhole, f, cxy, pos[k, 0], pos[k, 1], pos[k, 2], i) - tz[k, i]
+            n2 += res[k, i] * res[k, i]
+        rn = np.sqrt(n2)
+        if delta < 0 or rn <= delta:
+            cost += w[k] * rn * rn
+        else:
+            cost += w[k] * (2 * delta * rn - delta * delta)
+    return cost
+
+
+@_njit
+def _normal_equations(w, M, T, pinhole, f, delta, free, model, R, p, pos, res, H, g, Jq, Wa, Mk):
+    """H (nv, nv) and g (nv,) of the IRLS-weighted residuals at the placements R, p (held directions'
+    columns zero), in place; Jq (D, nv), Wa (njoints, 3) and Mk (D, 3) are scratch."""
+    joints, parents, Mr, Mt, kind, axis, K, KK, idx_q, column, scaling, offset, point_joint, in_parent, carried = \
+        model[:15]
+    velocity = model[18]
+    nv, D = len(free), res.shape[1]
+    H[:] = 0.0
+    g[:] = 0.0
+    for j in joints:  # each joint's axis in world axes (its scaling included)
+        for i in range(3):
+            Wa[j, i] = scaling[j] * (R[j, i, 0] * axis[j, 0] + R[j, i, 1] * axis[j, 1] + R[j, i, 2] * axis[j, 2])
+    for k in range(len(pos)):
+        if w[k] == 0.0:
+            continue
+        n2 = 0.0
+        for i in range(D):
+            n2 += res[k, i] * res[k, i]
+        rn = np.sqrt(n2)
+        ww = w[k] if delta < 0 or rn <= delta else w[k] * delta / max(rn, 1e-300)
+        if pinhole:  # d pixels / d point: (f / z) (I | -(y_x, y_y) / z) R at the point's y = R x + t
+            x0, x1, x2 = pos[k, 0], pos[k, 1], pos[k, 2]
+            z = M[2, 0] * x0 + M[2, 1] * x1 + M[2, 2] * x2 + T[2]
+            z = z if abs(z) > 1e-9 else 1e-9
+            a = f / z
+            for i in range(2):
+                yz = (M[i, 0] * x0 + M[i, 1] * x1 + M[i, 2] * x2 + T[i]) / z
+                for m in range(3):
+                    Mk[i, m] = a * M[i, m] - a * yz * M[2, m]
+        else:
+            for i in range(D):
+                for m in range(3):
+                    Mk[i, m] = M[i, m]
+        Jq[:] = 0.0
+        for j in joints:
+            c = column[j]
+            v = velocity[c]
+            if kind[j] == FIXED or not carried[k, c] or not free[v]:
+                continue
+            if kind[j] != PRISMATIC:  # the point's velocity w x (x - o)
+                x0, x1, x2 = pos[k, 0] - p[j, 0], pos[k, 1] - p[j, 1], pos[k, 2] - p[j, 2]
+                v0, v1, v2 = Wa[j, 1] * x2 - Wa[j, 2] * x1, Wa[j, 2] * x0 - Wa[j, 0] * x2, Wa[j, 0] * x1 - Wa[j, 1] * x0
+            else:
+                v0, v1, v2 = Wa[j, 0], Wa[j, 1], Wa[j, 2]
+            for i in range(D):
+                Jq[i, v] += Mk[i, 0] * v0 + Mk[i, 1] * v1 + Mk[i, 2] * v2
+        for a in range(nv):
+            for i in range(D):
+                g[a] += ww * Jq[i, a] * res[k, i]
+            for b in range(a, nv):
+                s = 0.0
+                for i in range(D):
+                    s += Jq[i, a] * Jq[i, b]
+                H[a, b] += ww * s
+    for a in range(nv):
+        for b in range(a):
+            H[a, b] = H[b, a]
+
+
+@_njit
+def _solve(A, b, x):
+    """x = A^-1 b for a small square A by Gaussian elimination with partial pivoting (A, b overwritten)."""
+    n = len(b)
+    for c in range(n):
+        piv = c
+        for r in range(c + 1, n):
+            if abs(A[r, c]) > abs(A[piv, c]):
+                piv = r
+        if piv != c:
+            for k in range(n):
+                A[c, k], A[piv, k] = A[piv, k], A[c, k]
+            b[c], b[piv] = b[piv], b[c]
+        for r in range(c + 1, n):
+            f = A[r, c] / A[c, c]
+            for k in range(c, n):
+                A[r, k] -= f * A[c, k]
+            b[r] -= f * b[c]
+    for r in range(n - 1, -1, -1):
+        s = b[r]
+        for k in range(r + 1, n):
+            s -= A[r, k] * x[k]
+        x[r] = s / A[r, r]
+
+
+@_njit
+def _integrate(q, dq, free, q_of_v, pair, limited, lower, upper, out):
+    """out = q moved by -dq on the free velocities (a continuous joint's (cos, sin) turned, renormalised to
+    first order as Pinocchio's ``integrate`` does), then clipped into the limits."""
+    out[:] = q
+    for v in range(len(dq)):
+        if not free[v]:
+            continue
+        i = q_of_v[v]
+        if pair[v]:
+            co, si = np.cos(-dq[v]), np.sin(-dq[v])
+            c, s = q[i] * co - q[i + 1] * si, q[i + 1] * co + q[i] * si
+            n2 = c * c + s * s
+            out[i], out[i + 1] = c * (3 - n2) / 2, s * (3 - n2) / 2
+        else:
+            out[i] = q[i] - dq[v]
+            if limited[i]:
+                out[i] = min(max(out[i], lower[i]), upper[i])
+
+
+@_njit
+def lm_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, lam, active, cost, last_it, rn,
+            pos_out, model):
+    """Iterations it_from..it_to of :func:`chainspace.robot.solver._sequence_lm` (view held, rows independent)
+    on every active row, in place: q (N, nq), lam, active, cost (N,), the iteration at which each row
+    stopped, and the residual norms rn (N, J) and points pos_out (N, J, 3) at its q. tz (N, J, D)
+    targets, w (N, J) weights, M (N, D, 3) and T (N, D) each row's view (pinhole: M (N, 3, 3), T (N, 3) and
+    f, cxy; :func:`_predict`), free (N, nv), delta < 0: squares."""
+    limited, lower, upper, q_of_v, pair = model[15], model[16], model[17], model[19], model[20]
+    N, J, D = tz.shape
+    nq, nv = q.shape[1], free.shape[1]
+    nj = len(model[1])
+    R, p, Wa = np.zeros((nj, 3, 3)), np.zeros((nj, 3)), np.zeros((nj, 3))
+    R[0, 0, 0] = R[0, 1, 1] = R[0, 2, 2] = 1.0
+    pos, res, res_t = np.empty((J, 3)), np.empty((J, D)), np.empty((J, D))
+    H, g, Hq, rhs, dq = np.empty((nv, nv)), np.empty(nv), np.empty((nv, nv)), np.empty(nv), np.empty(nv)
+    Jq, qt, qr, Mk = np.empty((D, nv)), np.empty(nq), np.empty(nq), np.empty((D, 3))
+    for r in range(N):
+        if not active[r]:
+            continue
+        qr[:] = q[r]
+        c_r = _evaluate(qr, tz[r], w[r], M[r], T[r], pinhole, f, cxy, delta, model, R, p, pos, res)
+        stale = placed = True
+        for it in range(it_from, it_to + 1):
+            if stale:  # the placements R, p are those of qr: its last evaluation
+                _normal_equations(w[r], M[r], T[r], pinhole, f, delta, free[r], model, R, p, pos, res, H, g, Jq, Wa,
+                                  Mk)
+                stale = False
+            mean = 0.0
+            for a in range(nv):
+                mean += H[a, a]
+            floor = 1e-6 * mean / nv + 1e-30
+            for a in range(nv):
+                for b in range(nv):
+                    Hq[a, b] = H[a, b]
+                Hq[a, a] += lam[r] * (H[a, a] + floor) + (0.0 if free[r, a] else 1.0)
+                rhs[a] = g[a]
+            _solve(Hq, rhs, dq)
+            _integrate(qr, dq, free[r], q_of_v, pair, limited, lower, upper, qt)
+            placed = False  # R, p, pos: the trial's until it is accepted
+            c_t = _evaluate(qt, tz[r], w[r], M[r], T[r], pinhole, f, cxy, delta, model, R, p, pos, res_t)
+            if c_t <= c_r:
+                rel = (c_r - c_t) / max(c_r, 1e-300)
+                qr[:] = qt
+                res[:] = res_t
+                c_r = c_t
+                stale = placed = True
+                lam[r] = max(lam[r] / 5, 1e-12)
+                if rel < tol or c_t < 1e-24:
+                    active[r] = False
+            else:
+                lam[r] *= 10
+                if lam[r] > 1e10:
+                    active[r] = False
+            last_it[r] = it
+            if not active[r]:
+                break
+        if not placed:  # the last trial was rejected: qr's points and residuals again
+            _evaluate(qr, tz[r], w[r], M[r], T[r], pinhole, f, cxy, delta, model, R, p, pos, res)
+        q[r] = qr
+        cost[r] = c_r
+        for k in range(J):
+            n2 = 0.0
+            for i in range(D):
+                n2 += res[k, i] * res[k, i]
+            rn[r, k] = np.sqrt(n2)
+            pos_out[r, k] = pos[k]
+
+
+def threads() -> int:
+    """Threads that :func:`run_rows` shares its rows among: ``CHAINSPACE_THREADS`` if set, else the cores
+    this process may use (at most 8)."""
+    env = os.environ.get("CHAINSPACE_THREADS", "").strip()
+    if env:
+        if not env.isdigit() or int(env) < 1:
+            raise ChainspaceError(f"CHAINSPACE_THREADS must be a positive whole number of threads, not {env!r}")
+        return int(env)
+    return max(1, min(8, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
+
+
+_pools: dict[tuple[int, int], ThreadPoolExecutor] = {}  # by (process, threads): a forked child makes its own
+MIN_ROWS_PER_THREAD = 256  # below it a thread's start costs more than its share of the rows
+
+
+def run_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, lam, active, cost, last_it, rn,
+             pos_out, model):
+    """:func:`lm_rows` with its rows shared among :func:`threads` threads (the compiled loop releases
+    the GIL; rows are independent, so the numbers do not depend on the split)."""
+    n = min(threads(), len(q) // MIN_ROWS_PER_THREAD)
+    if n <= 1:
+        lm_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, lam, active, cost, last_it, rn,
+                pos_out, model)
+        return
+    key = (os.getpid(), n)
+    pool = _pools.get(key) or _pools.setdefault(key, ThreadPoolExecutor(n, thread_name_prefix="chainspace-lm"))
+    cuts = np.linspace(0, len(q), n + 1).astype(int)
+    jobs = [pool.submit(lm_rows, *(x[a:b] for x in (q, tz, w, M, T)), pinhole, f, cxy, free[a:b], delta, tol,
+                        it_from, it_to,
+                        *(x[a:b] for x in (lam, active, cost, last_it, rn, pos_out)), model)
+            for a, b in zip(cuts[:-1], cuts[1:])]
+    for job in jobs:
+        job.result()
+
+
+def compile_now() -> None:
+    """Compile the solver now, or load it from numba's cache: a benchmark that times fits then times the
+    fits, not the one compilation after an install (some seconds). Runs one row of a one-joint arm, with
+    the argument types of every fit's calls."""
+    if numba is None:
+        return
+    i64 = np.int64
+    model = (np.array([1], i64), np.array([0, 0], i64), np.tile(np.eye(3), (2, 1, 1)), np.zeros((2, 3)),
+             np.array([FIXED, REVOLUTE], i64), np.array([[0.0, 0, 0], [0, 0, 1]]), np.zeros((2, 3, 3)),
+             np.zeros((2, 3, 3)), np.zeros(2, i64), np.zeros(2, i64), np.ones(2), np.zeros(2), np.array([1], i64),
+             np.array([[1.0, 0, 0]]), np.ones((1, 1), bool), np.zeros(1, bool), np.zeros(1), np.zeros(1),
+             np.zeros(1, i64), np.zeros(1, i64), np.zeros(1, bool))
+    lm_rows(np.zeros((1, 1)), np.zeros((1, 1, 2)), np.ones((1, 1)), np.zeros((1, 2, 3)), np.zeros((1, 2)), False,
+            1.0, np.zeros(2), np.ones((1, 1), bool), -1.0, 1e-8, 1, 1, np.full(1, 1e-4), np.ones(1, bool), np.zeros(1),
+            np.zeros(1, i64), np.zeros((1, 1)), np.zeros((1, 1, 3)), model)

@@ -1,0 +1,102 @@
+"""The compiled solver (chainspace.robot.compiled) gives the numpy solver's numbers."""
+
+import numpy as np
+import pytest
+
+from chainspace.bench.robots import robot_chain
+from chainspace.robot import compiled
+from chainspace.robot.kinematics import RobotKinematics, _random_q
+from chainspace.robot.solver import _sequence_lm
+from chainspace.robot.views import _PinholeView, _View
+
+
+def _robot(name):
+    chain = robot_chain(name)
+    return RobotKinematics(chain.metadata["urdf_path"], chain)
+
+
+def _problem(robot, kind, n=400, seed=0):
+    """Rows of one IK problem each: noisy tracks of random poses, starts 0.3 rad off."""
+    rng = np.random.default_rng(seed)
+    q_true = _random_q(robot, rng, n)
+    pos = robot.positions(q_true)
+    q0 = robot.from_angles(robot.angles(q_true) + 0.3 * rng.standard_normal((n, robot.nv)))
+    R = np.linalg.qr(rng.standard_normal((3, 3)))[0]
+    R *= np.sign(np.linalg.det(R))
+    if kind == "3d":
+        view = _View.identity(n)
+        return q0, pos, view
+    if kind == "weak":
+        view = _View(np.array([500.0]), R[None], np.array([[320.0, 240.0]]), np.zeros(n, int))
+    else:
+        view = _PinholeView(R[None], np.array([[0.1, -0.05, 3 * robot.reach()]]), 1000.0, np.array([640.0, 360.0]),
+                            np.zeros(n, int))
+    return q0, view.apply(pos)[0] + rng.standard_normal(pos.shape[:2] + (2,)), view
+
+
+def _solve(robot, q0, target, view, delta, use_compiled):
+    robot.__dict__.pop("_compiled", None)
+    if not use_compiled:
+        robot._compiled = None
+    assert (compiled.CompiledModel.of(robot) is not None) == use_compiled
+    n = len(q0)
+    return _sequence_lm(robot, q0, target, np.ones(target.shape[:2]), view, np.ones((n, robot.nv), bool),
+                        np.zeros(view.n_params, bool), 30, 1e-8, delta)
+
+
+@pytest.mark.parametrize("name", ["xarm7", "kinova", "panda", "ur10"])
+@pytest.mark.parametrize("kind,delta", [("3d", None), ("weak", None), ("weak", 2.0), ("pinhole", 2.0)])
+def test_compiled_solver_matches_numpy(name, kind, delta):
+    # revolute (the xArm7), continuous joints as (cos, sin) pairs (the Kinova), a finger no point moves (the
+    # Panda), points on joint axes (the UR10). Both solvers take the same steps; where the tracks leave a
+    # direction flat (a point on an axis, a redundant arm seen in 2D) rounding sends a row elsewhere along
+    # it, to the same cost. The xArm7's every direction is seen: there every row ends alike.
+    robot = _robot(name)
+    q0, target, view = _problem(robot, kind)
+    a = _solve(robot, q0, target, view, delta, True)
+    b = _solve(robot, q0, target, view, delta, False)
+    cost_a, cost_b = (a[2] ** 2).sum(1), (b[2] ** 2).sum(1)
+    assert np.mean(np.abs(cost_a - cost_b) <= 0.01 * cost_b + 1e-12) >= 0.99
+    same = np.abs(a[0] - b[0]).max(1) < 1e-6
+    assert same.mean() >= (1.0 if name == "xarm7" else 0.3)
+    np.testing.assert_allclose(a[3][same], b[3][same], atol=1e-8)
+    assert (a[4] == b[4]).mean() > 0.97
+    # a fit, not noise: the residuals are those of 1 px noise (or exact 3D points)
+    assert np.median(a[2]) < (1e-6 if kind == "3d" else 3.0)
+
+
+def test_continuous_joint_steps_as_pinocchio():
+    # the compiled step of a continuous joint turns its (cos, sin) pair as pinocchio.integrate does
+    import pinocchio as pin
+
+    robot = _robot("kinova")
+    model = compiled.CompiledModel.of(robot)
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        q = robot.from_angles(rng.uniform(-3, 3, robot.nv))
+        dv = 0.3 * rng.standard_normal(robot.nv)
+        out = np.empty(robot.nq)
+        compiled._integrate(q, -dv, np.ones(robot.nv, bool), model.q_of_v, model.pair, model.limited, model.lower,
+                            model.upper, out)
+        np.testing.assert_allclose(out, robot.clip(pin.integrate(robot.model, q, dv)), atol=1e-12)
+
+
+def test_threads_split_rows_without_changing_numbers(monkeypatch):
+    robot = _robot("ur10")
+    q0, target, view = _problem(robot, "weak", n=1200)
+    monkeypatch.setenv("CHAINSPACE_THREADS", "1")
+    a = _solve(robot, q0, target, view, None, True)
+    monkeypatch.setenv("CHAINSPACE_THREADS", "3")
+    b = _solve(robot, q0, target, view, None, True)
+    for x, y in zip(a[:5:2] + a[3:4], b[:5:2] + b[3:4]):
+        np.testing.assert_array_equal(x, y)
+    assert a[5] == b[5]
+
+
+def test_bad_thread_count_is_a_clear_error(monkeypatch):
+    from chainspace.errors import ChainspaceError
+
+    for bad in ("0", "two", "-1"):
+        monkeypatch.setenv("CHAINSPACE_THREADS", bad)
+        with pytest.raises(ChainspaceError, match="CHAINSPACE_THREADS"):
+            compiled.threads()
