@@ -65,13 +65,17 @@ def test_every_benchmark_runs_its_smallest_setting(name, capsys, monkeypatch):
     assert expect in out, out[-2000:]
 
 
-def test_batch_benchmark_recordings(tmp_path):
+@pytest.mark.parametrize("robot", [None, "milling_arm"])
+def test_batch_benchmark_recordings(tmp_path, robot):
     spec = importlib.util.spec_from_file_location("bench_batch", BENCH / "bench_batch.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    recs = mod.read_manifest(mod.make_recordings(tmp_path, 1, 12))
+    recs = mod.read_manifest(mod.make_recordings(tmp_path, 1, 12, robot))
     res = mod.process_recording(recs[0], tmp_path / "out")
     assert res["cpu_seconds"] > 0 and len(recs) == 1
+    assert recs[0].is_robot == (robot is not None)
+    # a robot's recording is reconstructed and fitted: its joint angles are written too
+    assert (tmp_path / "out" / recs[0].name / "joint_angles.csv").is_file() == (robot is not None)
 
 
 def test_reconstruction_benchmark_without_its_data_says_skipped(capsys, monkeypatch, tmp_path):
