@@ -100,3 +100,22 @@ def test_bad_thread_count_is_a_clear_error(monkeypatch):
         monkeypatch.setenv("CHAINSPACE_THREADS", bad)
         with pytest.raises(ChainspaceError, match="CHAINSPACE_THREADS"):
             compiled.threads()
+
+
+def test_a_solver_that_cannot_compile_falls_back_to_numpy(monkeypatch):
+    # numba installed but unable to compile (an LLVM or cache-folder error): a warning, then the numpy solver
+    def broken():
+        raise RuntimeError("no LLVM here")
+
+    monkeypatch.setattr(compiled, "compile_now", broken)
+    compiled._compiles.cache_clear()
+    try:
+        robot = _robot("ur10")
+        with pytest.warns(RuntimeWarning, match="could not be compiled"):
+            assert compiled.CompiledModel.of(robot) is None
+        q0, target, view = _problem(robot, "weak", n=50)
+        out = _sequence_lm(robot, q0, target, np.ones(target.shape[:2]), view, np.ones((50, robot.nv), bool),
+                           np.zeros(6, bool), 30, 1e-8, None)
+        assert np.median(out[2]) < 3.0
+    finally:
+        compiled._compiles.cache_clear()

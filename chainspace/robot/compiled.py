@@ -21,7 +21,9 @@ some seconds compiling. ``CHAINSPACE_THREADS`` sets the number of threads (defau
 
 from __future__ import annotations
 
+import functools
 import os
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -76,7 +78,7 @@ class CompiledModel:
             ok = numba is not None and robot._batch is not None and ((fold != 0).sum(1) == 1).all() and \
                 (fold.max(1) == 1).all() and np.array_equal(qv.sum(0), 1 + robot.continuous_v) and \
                 (qv.sum(1) == 1).all()
-            robot._compiled = CompiledModel(robot) if ok else None
+            robot._compiled = CompiledModel(robot) if ok and _compiles() else None
         return robot._compiled
 
     def args(self) -> tuple:
@@ -369,6 +371,19 @@ def run_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, 
             for a, b in zip(cuts[:-1], cuts[1:])]
     for job in jobs:
         job.result()
+
+
+@functools.cache
+def _compiles() -> bool:
+    """Whether the solver compiles here (once per process; numba's cache makes it quick after the first
+    time). Where numba is installed but cannot compile, the numpy solver is used and a warning says so."""
+    try:
+        compile_now()
+    except Exception as exc:  # numba's errors come from many places (typing, LLVM, the cache's folder)
+        warnings.warn(f"chainspace: the compiled robot solver could not be compiled here ({type(exc).__name__}: "
+                      f"{exc}); the robot fit uses the slower numpy solver", RuntimeWarning, stacklevel=2)
+        return False
+    return True
 
 
 def compile_now() -> None:
