@@ -31,10 +31,9 @@ TARGET = {"UR10": 30.0, "milling arm": 30.0, "Panda": 10.0, "xArm7": 10.0}
 def run(name: str, n_frames: int, noise: float, seed: int, pinhole: bool = False, unknown: bool = False) -> dict:
     from chainspace.bench.robots import robot_chain, trial_errors
     from chainspace.reconstruction.pipeline import reconstruct
+    from chainspace.robot.compiled import compile_now
     from chainspace.robot.fit import fit_joint_angles
     from chainspace.synthetic.robot import synthesize
-
-    from chainspace.robot.compiled import compile_now
 
     compile_now()  # the compiled solver's one-off compilation after an install is not a fit's time
     chain = robot_chain(name)
