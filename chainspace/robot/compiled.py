@@ -82,6 +82,7 @@ class CompiledModel:
         return robot._compiled
 
     def args(self) -> tuple:
+        """The arrays as one tuple, in the order the compiled functions unpack them (``model``)."""
         return (self.joints, self.parents, self.Mr, self.Mt, self.kind, self.axis, self.MrK, self.MrKK, self.idx_q,
                 self.column, self.scaling, self.offset, self.point_joint, self.in_parent, self.carried, self.limited,
                 self.lower, self.upper, self.velocity, self.q_of_v, self.pair)
