@@ -31,11 +31,9 @@ TARGET = {"UR10": 30.0, "milling arm": 30.0, "Panda": 10.0, "xArm7": 10.0}
 def run(name: str, n_frames: int, noise: float, seed: int, pinhole: bool = False, unknown: bool = False) -> dict:
     from chainspace.bench.robots import robot_chain, trial_errors
     from chainspace.reconstruction.pipeline import reconstruct
-    from chainspace.robot.compiled import compile_now
     from chainspace.robot.fit import fit_joint_angles
     from chainspace.synthetic.robot import synthesize
 
-    compile_now()  # the compiled solver's one-off compilation after an install is not a fit's time
     chain = robot_chain(name)
     # pinhole: synthesize's default camera (a real lens at its distance), fitted with its intrinsics
     camera = {} if pinhole else {"camera": "static"}
@@ -73,6 +71,9 @@ def main(argv=None) -> int:
         os.environ["CHAINSPACE_THREADS"] = str(a.threads)
     if a.quick:
         a.robots, a.frames = ["milling arm"], 30
+    from chainspace.robot.compiled import compile_now, threads
+
+    compile_now()  # the compiled solver's one-off compilation after an install is not a fit's time
     rows = []
     for name in a.robots:
         r = run(name, a.frames, a.noise, a.seed, a.pinhole, a.unknown)
@@ -91,8 +92,6 @@ def main(argv=None) -> int:
     camera = ("static pinhole camera" if a.pinhole else "static weak-perspective camera") + (
         ", fitted with perspective=True (focal and principal point unknown)" if a.unknown else
         ", intrinsics known" if a.pinhole else "")
-    from chainspace.robot.compiled import threads
-
     print(f"\n{camera}, {a.noise:g} px noise, seed {a.seed}; fit_joint_angles alone (reconstruction not counted); "
           f"stages in wall-clock seconds; compiled solver on {threads()} thread(s).")
     return 0

@@ -147,8 +147,8 @@ def _predict(M, T, pinhole, f, cxy, x0, x1, x2, i):
 def _evaluate(q, tz, w, M, T, pinhole, f, cxy, delta, model, R, p, pos, res):
     """Residuals res (J, D) of q (nq,) under the view (:func:`_predict`), in place, and the robust cost
     sum_j w_j rho(|res_j|) (plain squares for delta < 0)."""
-    joints, parents, Mr, Mt, kind, axis, K, KK, idx_q, column, scaling, offset, point_joint, in_parent = model[:14]
-    _place(q, joints, parents, Mr, Mt, kind, axis, K, KK, idx_q, scaling, offset, R, p)
+    joints, parents, Mr, Mt, kind, axis, MrK, MrKK, idx_q, column, scaling, offset, point_joint, in_parent = model[:14]
+    _place(q, joints, parents, Mr, Mt, kind, axis, MrK, MrKK, idx_q, scaling, offset, R, p)
     _points(R, p, point_joint, in_parent, pos)
     D = tz.shape[1]
     cost = 0.0
@@ -169,9 +169,8 @@ def _evaluate(q, tz, w, M, T, pinhole, f, cxy, delta, model, R, p, pos, res):
 def _normal_equations(w, M, T, pinhole, f, delta, free, model, R, p, pos, res, H, g, Jq, Wa, Mk):
     """H (nv, nv) and g (nv,) of the IRLS-weighted residuals at the placements R, p (held directions'
     columns zero), in place; Jq (D, nv), Wa (njoints, 3) and Mk (D, 3) are scratch."""
-    joints, parents, Mr, Mt, kind, axis, K, KK, idx_q, column, scaling, offset, point_joint, in_parent, carried = \
-        model[:15]
-    velocity = model[18]
+    joints, kind, axis, column, scaling, carried, velocity = model[0], model[4], model[5], model[9], model[10], \
+        model[14], model[18]
     nv, D = len(free), res.shape[1]
     H[:] = 0.0
     g[:] = 0.0
@@ -271,10 +270,10 @@ def _integrate(q, dq, free, q_of_v, pair, limited, lower, upper, out):
 
 
 @_njit
-def lm_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, lam, active, cost, last_it, rn,
-            pos_out, model):
+def lm_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, lam, active, last_it, rn, pos_out,
+            model):
     """Iterations it_from..it_to of :func:`chainspace.robot.solver._sequence_lm` (view held, rows independent)
-    on every active row, in place: q (N, nq), lam, active, cost (N,), the iteration at which each row
+    on every active row, in place: q (N, nq), lam, active (N,), the iteration at which each row
     stopped, and the residual norms rn (N, J) and points pos_out (N, J, 3) at its q. tz (N, J, D)
     targets, w (N, J) weights, M (N, D, 3) and T (N, D) each row's view (pinhole: M (N, 3, 3), T (N, 3) and
     f, cxy; :func:`_predict`), free (N, nv), delta < 0: squares."""
@@ -330,7 +329,6 @@ def lm_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, l
         if not placed:  # the last trial was rejected: qr's points and residuals again
             _evaluate(qr, tz[r], w[r], M[r], T[r], pinhole, f, cxy, delta, model, R, p, pos, res)
         q[r] = qr
-        cost[r] = c_r
         for k in range(J):
             n2 = 0.0
             for i in range(D):
@@ -354,21 +352,21 @@ _pools: dict[tuple[int, int], ThreadPoolExecutor] = {}  # by (process, threads):
 MIN_ROWS_PER_THREAD = 256  # below it a thread's start costs more than its share of the rows
 
 
-def run_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, lam, active, cost, last_it, rn,
-             pos_out, model):
+def run_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, lam, active, last_it, rn, pos_out,
+             model):
     """:func:`lm_rows` with its rows shared among :func:`threads` threads (the compiled loop releases
     the GIL; rows are independent, so the numbers do not depend on the split)."""
     n = min(threads(), len(q) // MIN_ROWS_PER_THREAD)
     if n <= 1:
-        lm_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, lam, active, cost, last_it, rn,
-                pos_out, model)
+        lm_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, lam, active, last_it, rn, pos_out,
+                model)
         return
     key = (os.getpid(), n)
     pool = _pools.get(key) or _pools.setdefault(key, ThreadPoolExecutor(n, thread_name_prefix="chainspace-lm"))
     cuts = np.linspace(0, len(q), n + 1).astype(int)
     jobs = [pool.submit(lm_rows, *(x[a:b] for x in (q, tz, w, M, T)), pinhole, f, cxy, free[a:b], delta, tol,
                         it_from, it_to,
-                        *(x[a:b] for x in (lam, active, cost, last_it, rn, pos_out)), model)
+                        *(x[a:b] for x in (lam, active, last_it, rn, pos_out)), model)
             for a, b in zip(cuts[:-1], cuts[1:])]
     for job in jobs:
         job.result()
@@ -400,5 +398,5 @@ def compile_now() -> None:
              np.array([[1.0, 0, 0]]), np.ones((1, 1), bool), np.zeros(1, bool), np.zeros(1), np.zeros(1),
              np.zeros(1, i64), np.zeros(1, i64), np.zeros(1, bool))
     lm_rows(np.zeros((1, 1)), np.zeros((1, 1, 2)), np.ones((1, 1)), np.zeros((1, 2, 3)), np.zeros((1, 2)), False,
-            1.0, np.zeros(2), np.ones((1, 1), bool), -1.0, 1e-8, 1, 1, np.full(1, 1e-4), np.ones(1, bool), np.zeros(1),
+            1.0, np.zeros(2), np.ones((1, 1), bool), -1.0, 1e-8, 1, 1, np.full(1, 1e-4), np.ones(1, bool),
             np.zeros(1, i64), np.zeros((1, 1)), np.zeros((1, 1, 3)), model)
