@@ -4,6 +4,7 @@ by dynamic programming, branches after long gaps, views turned about the first j
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
@@ -345,6 +346,27 @@ def _turned_views(robot: RobotKinematics, q: np.ndarray, view: _View, gauge: np.
 # frame, in which such a robot's tracked points lie at rest (most arms; a pendulum), as for the weak
 # fit's reflected candidate (chainspace.robot.fit)
 SYMMETRY_MIRROR = np.diag([1.0, -1.0, 1.0])
+
+
+def _base_keeping_mirror(robot: RobotKinematics, tracked: np.ndarray) -> Callable[[np.ndarray], np.ndarray] | None:
+    """A reflection of base-frame points (F, J, 3) that leaves the ``tracked`` (J,) points no joint moves
+    where they are: :data:`SYMMETRY_MIRROR` where they lie in its plane (an arm's base on its vertical
+    axis), else the reflection through their own plane (a quadruped's trunk: base and hips). None where
+    they span space. Every reflection of the tracked points is this one turned (a reflection times a
+    reflection is a turn), so the mirror image of a motion is a pose of the robot, base held, when the
+    reflected points are: a target for :func:`_far_poses` with the base where the robot has it."""
+    static = tracked & ~_moves(robot).any(1)
+    sp = robot.positions(robot.q_rest)[0, static]
+    tol = 1e-6 * robot.reach()
+    if len(sp) == 0 or np.abs(sp[:, 1]).max() <= tol:
+        return lambda X: X @ SYMMETRY_MIRROR
+    c0 = sp.mean(0)
+    _, sv, vt = np.linalg.svd(sp - c0)
+    if len(sv) == 3 and sv[2] > tol:
+        return None
+    n = vt[-1] if len(sv) > 1 else np.eye(3)[1]  # the plane's normal, or one across the line (or point)
+    G = np.eye(3) - 2.0 * np.outer(n, n)
+    return lambda X: (X - c0) @ G + c0
 
 
 def _mirror_pose(robot: RobotKinematics, q: np.ndarray, free: np.ndarray) -> np.ndarray | None:

@@ -202,7 +202,7 @@ from .views import _affine_camera, _align, _camera_view, _looks_down, similarity
 from .solver import _huber, _motion_prior, _noise_sigma, _rms_per_frame, _robust_scale, _sequence_lm
 from .starts import _fit_3d, _initial_camera, _sequential_ik
 from .observability import _fill_unseen, _gauge_directions, _hold, _notes, _structural, _unseen, _weights
-from .candidates import (FACE_ON_DEG, SYMMETRY_MIRROR, TIE_VARIANCES, _face_on_planes, _far_poses, _frame_ranges,
+from .candidates import (FACE_ON_DEG, TIE_VARIANCES, _base_keeping_mirror, _face_on_planes, _far_poses, _frame_ranges,
                          _mirror_targets, _nearest_rest_branch, _same_motion, _static_line_starts, _viterbi_reanchored)
 from .selection import _most_probable, _prefer_rest, view_side_valid
 from .uncertainty import CAMERA_MISFIT_RATIO, assess_fit, camera_misfit, track_jitter
@@ -214,6 +214,10 @@ PERSPECTIVE_HINT = ("a camera within a few robot reaches sees the robot in persp
                     "intrinsics or image size) does not model: pass intrinsics= (a calibration), "
                     "image_size=(width, height) or perspective=True (focal length and principal point "
                     "fitted) to fit under perspective")
+
+# rounds of reflecting the best motion while a reflection wins: two sufficed for arms; a quadruped's
+# refits of its mirror went deeper for three
+REFLECTION_ROUNDS = 4
 
 
 def _positive(x: Any) -> bool:
@@ -535,6 +539,11 @@ def fit_joint_angles(
                         q=out[0], gauge=g2, down=_looks_down(out[1]), free=free, free_prior=free_prior, delta=delta)
 
         side_ok, side_why = view_side_valid(robot)  # legs hanging below their base: the camera side decides nothing
+        base_mirror = _base_keeping_mirror(robot, (w2 > 0).any(0))
+        # where the side decides nothing, the mirror image is searched far in joint space too, unless this fit
+        # only gives the perspective fit its starts: perspective settles the mirror (and its starts for a
+        # quadruped, Solo12 at seed 0 from below, led one leg into a wrong basin with the far mirrors among them)
+        legs_mirror = not side_ok and _starts is None
 
         def seen_from_wrong_side(r):
             return side_ok and view_from is not None and (r["down"] < -0.02 if view_from == "above" else
@@ -581,16 +590,17 @@ def fit_joint_angles(
         far_found: dict[tuple[int, bool], tuple] = {}
 
         def far_mirrors(r, up_to_links):
-            # r's points mirrored about a vertical plane, as poses wherever they lie in joint space: whole,
-            # or (up_to_links) with each link and all beyond it mirrored back in depth under r's camera
-            # (the same image: the mirror of the arm up to that link). Searched once per motion (r kept
-            # with its result, so that its id is not reused).
+            # r's points mirrored by the reflection that keeps the base points in place (an arm's vertical
+            # plane, a quadruped's trunk plane: candidates._base_keeping_mirror), as poses wherever they
+            # lie in joint space: whole, or (up_to_links) with each link and all beyond it mirrored back in
+            # depth under r's camera (the same image: the mirror of the arm up to that link). Searched
+            # once per motion (r kept with its result, so that its id is not reused).
             key = (id(r), up_to_links)
             if key not in far_found:
                 X = r["out"][3]
                 targets = _mirror_targets(robot, X, r["out"][1]) if up_to_links else [X]
-                far_found[key] = (r, _far_poses(robot, r["out"][0], [m @ SYMMETRY_MIRROR for m in targets],
-                                                free_blind))
+                far_found[key] = (r, _far_poses(robot, r["out"][0], [base_mirror(m) for m in targets], free_blind)
+                                  if base_mirror is not None else [])
             return far_found[key][1]
 
         def reflection(r, M, up_to_links=True):
@@ -613,24 +623,29 @@ def fit_joint_angles(
             def candidate(q_s, pos, conv, **kw):
                 return dict(sign=-r["c"]["sign"], q=q_s, pos=pos, gauge=r["c"]["gauge"], conv=conv, **kw)
 
-            best, partial = fitted(q_a), []
-            if (w3 * best[2]).max() > 1e-3 * robot.reach() and seen_from_wrong_side(r):
+            best, partial, whole = fitted(q_a), [], False
+            if (w3 * best[2]).max() > 1e-3 * robot.reach() and (seen_from_wrong_side(r) or legs_mirror):
                 # X_alt is a robot's motion reflected: where the 3D fit did not reach it and r is seen
-                # from the wrong side (the mirrors of one seen from the right side lose to it), the poses
-                # that take r's points mirrored (every reflection of the points is the mirror about a
-                # vertical plane turned: M times that mirror is a rotation). A UR10 seen from below had
-                # the exact mirror of the winner as its truth, five joints 40-137 degrees away, and was
-                # reported seen from above against the side it was told; a Kinova arm the mirror up to
-                # its wrist (the hand's points at the winner's depths), three joints 11-149 degrees away.
+                # from the wrong side (the mirrors of one seen from the right side lose to it), or the
+                # side decides nothing (legs_mirror), the poses that take r's points mirrored (every reflection of
+                # the points is the base-keeping mirror turned: M times that mirror is a rotation). A
+                # quadruped (Solo12, full ranges, weak camera) ended on the exact mirror of its truth, every
+                # joint 12-154 degrees off and none flagged, its legs' mirror half a turn away. A UR10 seen
+                # from below had the exact mirror of the winner as its truth, five joints 40-137 degrees
+                # away, and was reported seen from above against the side it was told; a Kinova arm the
+                # mirror up to its wrist (the hand's points at the winner's depths), three joints 11-149
+                # degrees away.
                 partial = far_mirrors(r, True) if up_to_links else []
                 for q_s in far_mirrors(r, False):
                     far = fitted(q_s)
                     if (w3 * far[2] ** 2).sum() < (w3 * best[2] ** 2).sum():
-                        best = far
+                        best, whole = far, legs_mirror
             # the partial mirrors are whole paths through every frame: refined from all of them, since
-            # the per-frame IK from their first frame drifted onto the hand's other branches (the Kinova)
-            return [candidate(best[0], best[3], best[4])] + [candidate(q_s, robot.positions(q_s), True, whole_path=True)
-                                                             for q_s in partial]
+            # the per-frame IK from their first frame drifted onto the hand's other branches (the Kinova);
+            # so is a quadruped's whole mirror (per-frame IK drifted onto its legs' other branches; an
+            # arm's whole mirror refined as a whole path ended in a wrong basin of the xArm7's wrist)
+            return [candidate(best[0], best[3], best[4], whole_path=whole)] + \
+                [candidate(q_s, robot.positions(q_s), True, whole_path=True) for q_s in partial]
 
         def depth_mirror(r):
             R0 = r["out"][1].R[0] if not per_frame else r["out"][1].R.mean(0)
@@ -653,13 +668,14 @@ def fit_joint_angles(
             # built mirror-symmetric (its tracked points in one vertical plane at rest) the mirror about
             # that plane, seen through the mirrored camera. The best motion is tried under both; when a
             # reflection wins (a better fit found from the reflected start), it is reflected in turn,
-            # since its own mirror image may be the one seen from the right side.
+            # since its own mirror image may be the one seen from the right side, or tie with it (a
+            # quadruped's legs: each round's refit went deeper, hundreds of noise variances, for three rounds).
             reflected: list[dict] = []
-            while len(reflected) < 2 and not any(results[0] is r for r in reflected):
+            while len(reflected) < REFLECTION_ROUNDS and not any(results[0] is r for r in reflected):
                 r0 = results[0]
                 reflected.append(r0)
-                stage("robot fit: refining the best fit's two reflections on the tracks (round %d of at most 2)",
-                      len(reflected))
+                stage(f"robot fit: refining the best fit's two reflections on the tracks (round %d of at most "
+                      f"{REFLECTION_ROUNDS})", len(reflected))
                 alts = refined((c for M in (depth_mirror(r0), np.diag([1.0, -1.0, 1.0])) for c in reflection(r0, M)),
                                results)
                 results, mirror_tied = order(results + alts)
