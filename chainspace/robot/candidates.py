@@ -220,6 +220,42 @@ def _far_depth_flips(robot: RobotKinematics, q: np.ndarray, view: _View, free: n
     return _far_poses(robot, q, _mirror_targets(robot, robot.positions(q), view), free)
 
 
+def _branches_combined(robot: RobotKinematics, qs: np.ndarray, rn: np.ndarray, n_frames: int, target: np.ndarray,
+                       w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """IK solutions ``qs`` (n_frames * n_starts, nq, frame by frame) and their residuals ``rn`` (same rows,
+    J), with one more row per frame (the last of its rows): for each branch of the tree (joints moving
+    points no other branch moves: a quadruped's legs), the joints of the start that put that branch's
+    points nearest ``target`` (n_frames, J, 3; weights ``w``). Why: one start must reach every leg at
+    once, which few random starts do for four legs half a turn from them (Solo12's mirror image: each
+    leg reached by about half the starts, all four by one or none in some frames)."""
+    moves = _moves(robot)  # (J, nv)
+    groups = _branch_groups(moves)
+    if len(groups) < 2:
+        return qs, rn
+    a = robot.angles(qs).reshape(n_frames, -1, robot.nv)
+    r = rn.reshape(n_frames, -1, rn.shape[-1])
+    combined = a[:, 0].copy()
+    for joints in groups:
+        best = r[:, :, moves[:, joints].any(1)].max(2).argmin(1)  # (n_frames,) the start nearest on this branch
+        combined[:, joints] = a[np.arange(n_frames), best][:, joints]
+    qc = robot.from_angles(combined)
+    rc = np.linalg.norm(robot.positions(qc) - target, axis=-1) * (w > 0)
+    qs = np.concatenate([qs.reshape(n_frames, -1, qs.shape[-1]), qc[:, None]], 1).reshape(-1, qs.shape[-1])
+    rn = np.concatenate([r, rc[:, None]], 1).reshape(-1, rn.shape[-1])
+    return qs, rn
+
+
+def _branch_groups(moves: np.ndarray) -> list[np.ndarray]:
+    """The joints (nv) split into branches: two joints are in one branch when they move a common point
+    (``moves`` (J, nv)), directly or through others; joints that move no point are in none."""
+    nv = moves.shape[1]
+    linked = (moves.T.astype(int) @ moves.astype(int)) > 0  # (nv, nv) share a point
+    label = np.arange(nv)
+    for _ in range(nv):  # each joint takes the smallest label among the joints it shares a point with
+        label = np.where(linked, label[None, :], nv).min(1)
+    return [np.flatnonzero(label == k) for k in np.unique(label[moves.any(0)])]
+
+
 def _far_poses(robot: RobotKinematics, q: np.ndarray, targets: list[np.ndarray], free: np.ndarray,
                n_samples: int = 5, n_random: int = 24, seed: int = 0) -> list[np.ndarray]:
     """Per target (F, J, 3) of tracked points in the base frame, the motion (F, nq) that puts every
@@ -241,6 +277,7 @@ def _far_poses(robot: RobotKinematics, q: np.ndarray, targets: list[np.ndarray],
         ones = np.ones(m.shape[:2])
         qs, _, rn, _, _, _ = _sequence_lm(robot, starts, m[rows], ones[rows], _View.identity(len(rows)),
                                           movable[rows], np.zeros(7, bool), 40, 1e-10, None)
+        qs, rn = _branches_combined(robot, qs, rn, len(samples), m[samples], ones[samples])
         hit = rn.max(1) < tol
         if not hit.reshape(len(samples), -1).any(1).all():
             continue  # not a pose of the robot in some frame

@@ -705,7 +705,7 @@ def fit_joint_angles(
             stage("robot fit: choosing among %d fits with the motion prior", len(results))
             r, mirror_tied, it = _most_probable(robot, results, tracks, w2, prior,
                                                 max(sigma, px_floor), max_iter, tol, seen_from_wrong_side,
-                                                reflected_start, rebranch, scored)
+                                                reflected_start, rebranch, scored, reflect_always=legs_mirror)
             n_iter += it
             timings["smoothed_choice"] = time.perf_counter() - t1 - timings["refine_candidates"]
             results = [r] + [x for _, x in sorted(scored, key=lambda sx: sx[0]) if x is not r]

@@ -55,14 +55,15 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
                    sigma: float, max_iter: int, tol: float, wrong_side: Callable[[dict], bool],
                    reflected: Callable[[dict], dict],
                    rebranch: Callable[[dict, tuple], tuple[np.ndarray, _View]],
-                   scored_out: list | None = None) -> tuple[dict, bool, int]:
+                   scored_out: list | None = None, reflect_always: bool = False) -> tuple[dict, bool, int]:
     """The fit of the most probable motion under the smoothness prior, among ``results`` (refined fits,
     preferred first): each distinct fit that the tracks alone nearly tie is smoothed (:func:`_smooth_lm`)
     and scored by the smoothed objective, robust residuals plus the motion prior (``prior``, the sparse
     matrix of :func:`_motion_prior`), with one Huber threshold for all; a direction that no point seen
     in a frame moves is free there (``free_prior``: the prior interpolates it). When the lowest is seen
-    from the wrong side (``wrong_side``), its mirror image (``reflected``: a start with ``q``, ``view``,
-    ``free_prior``) is smoothed and scored too. Each
+    from the wrong side (``wrong_side``), or always with ``reflect_always`` (legs, whose side decides
+    nothing: the smoothed winner's mirror is reached where the unsmoothed fits' was not), its mirror
+    image (``reflected``: a start with ``q``, ``view``, ``free_prior``) is smoothed and scored too. Each
     smoothed fit then gets the branch of every frame chosen again (``rebranch``, a Viterbi pass) and is
     smoothed again while that lowers its score. The best is smoothed again from views turned about
     its gauge joint (:func:`_turned_views`). Of the fits within 25 noise variances of the lowest score,
@@ -128,7 +129,7 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
     if least[2] is not r:
         scored = [sr for sr in scored if sr[1] is not r] + [least[1:]]
         r = least[2]
-    if wrong_side(r):
+    if wrong_side(r) or reflect_always:
         start = reflected(r)
         score(start, start["q"], start["view"])
     lowest = min(sr[0] for sr in scored)
