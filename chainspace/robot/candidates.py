@@ -248,11 +248,10 @@ def _branches_combined(robot: RobotKinematics, qs: np.ndarray, rn: np.ndarray, n
 def _branch_groups(moves: np.ndarray) -> list[np.ndarray]:
     """The joints (nv) split into branches: two joints are in one branch when they move a common point
     (``moves`` (J, nv)), directly or through others; joints that move no point are in none."""
-    nv = moves.shape[1]
+    from scipy.sparse.csgraph import connected_components
+
     linked = (moves.T.astype(int) @ moves.astype(int)) > 0  # (nv, nv) share a point
-    label = np.arange(nv)
-    for _ in range(nv):  # each joint takes the smallest label among the joints it shares a point with
-        label = np.where(linked, label[None, :], nv).min(1)
+    label = connected_components(linked, directed=False)[1]
     return [np.flatnonzero(label == k) for k in np.unique(label[moves.any(0)])]
 
 
