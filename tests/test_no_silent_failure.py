@@ -372,3 +372,16 @@ def test_a_tree_splits_into_branches_that_share_no_point(arm, example_urdf):
     groups = _branch_groups(_moves(robot))
     assert [len(g) for g in groups] == [3, 3, 3, 3]
     assert sorted(np.concatenate(groups).tolist()) == list(range(robot.nv))
+
+
+@pytest.mark.parametrize("robot", ["ur10", "ur5"])
+def test_a_joint_known_only_to_more_than_half_the_accuracy_claimed_is_flagged(robot, example_urdf):
+    """The UR10 and UR5 from below over their full ranges through a weak camera (seed 31, first run at the end
+    of the quadruped change): wrist_2 3.0 and 2.4 degrees RMS off with a reported standard deviation of
+    1.3 and 1.1 degrees, reported observable. No other basin (noise-free tracks give it to 0.01 degree)
+    and the deviations hold (12 noise draws of the same motion: 60 % of the errors within one); the flag
+    compared one deviation with the 2 degrees claimed, so a third of such joints passed it. Now two
+    (uncertainty.UNCERTAIN_SIGMAS)."""
+    example_urdf(robot)
+    silent = _silent_joints(robot, "full, below", 31, view_from="below")
+    assert not silent, silent

@@ -90,8 +90,9 @@ variances of the best: a likelihood-ratio test), applies these rules:
   plane; legs or a hanging limb do not). What the rules could not settle validly is reported, not
   hidden: ``fit.alternatives`` (the tied motions, the reported motion's exact depth-flip twins
   included) and ``fit.ambiguous`` (joints where one differs by more than
-  ``uncertainty.AMBIGUOUS_DEG`` = 2 degrees RMS); ``fit.q_std`` gives per-frame standard deviations
-  from the fit's Gauss-Newton covariance (:mod:`chainspace.robot.uncertainty`).
+  ``uncertainty.AMBIGUOUS_DEG`` = 2 degrees RMS, or two of its standard deviations do); ``fit.q_std``
+  gives per-frame standard deviations from the fit's Gauss-Newton covariance
+  (:mod:`chainspace.robot.uncertainty`).
 * *Singularities.* Where two joint axes align (a wrist stretched straight; a 7-axis arm's upper arm
   along its first axis) only the sum of their angles is seen, and a path may continue on either
   branch. Nothing in the tracks can split them there; plan paths (and camera checks) away from them,
