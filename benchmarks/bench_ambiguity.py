@@ -25,7 +25,7 @@ ROWS = {
 LIMIT_DEG = 2.0
 
 
-def run(robots, seeds: int, n_frames: int, progress=None, search_ties: bool = False) -> list[dict]:
+def run(robots, seeds: int, n_frames: int, progress=None, search_ties: bool = True) -> list[dict]:
     from chainspace.io.descriptions import example_robot_urdf
     from chainspace.io.urdf import from_urdf
     from chainspace.reconstruction.pipeline import reconstruct
@@ -83,8 +83,8 @@ def main(argv=None) -> int:
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--frames", type=int, default=30)
     p.add_argument("--quick", action="store_true", help="the quadruped leg, one seed, 10 frames (a smoke run)")
-    p.add_argument("--search-ties", action="store_true",
-                   help="fit_joint_angles(search_ties=True): also search beyond the fit's candidates (slow)")
+    p.add_argument("--no-search-ties", dest="search_ties", action="store_false",
+                   help="fit_joint_angles(search_ties=False): only the fit's own candidates (faster)")
     a = p.parse_args(argv)
     if a.quick:
         a.robots, a.seeds, a.frames = ["quadruped leg"], 1, 10

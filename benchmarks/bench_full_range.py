@@ -5,6 +5,7 @@
     python benchmarks/bench_full_range.py --settings "singular, above" --camera static
     python benchmarks/bench_full_range.py --camera static --frames 30 --first-seed 28 --seeds 2  # held-out seeds
     python benchmarks/bench_full_range.py --quick                  # 2 robots x 1 setting, 20 frames
+    python benchmarks/bench_full_range.py --no-search-ties         # the fit without its search for ties
 
 Prints one markdown table, then every silent failure, every flagged joint with its reason and every run
 that returned no fit (see chainspace.bench.full_range). Exit code 1 when a robot misses the target
@@ -30,8 +31,8 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=None, help="frames per run (default 60; --quick 20)")
     p.add_argument("--seeds", type=int, default=1, help="runs per robot and setting (default 1)")
     p.add_argument("--first-seed", type=int, default=0, help="the first run's seed (default 0)")
-    p.add_argument("--search-ties", action="store_true",
-                   help="fit_joint_angles(search_ties=True): also search beyond the fit's candidates (slow)")
+    p.add_argument("--no-search-ties", dest="search_ties", action="store_false",
+                   help="fit_joint_angles(search_ties=False): only the fit's own candidates (faster)")
     p.add_argument("--quick", action="store_true", help="milling arm and UR5, full range from above, 20 frames")
     p.add_argument("--json", default=None, help="also write every run to this JSON file (refuses to overwrite)")
     p.add_argument("--from-json", nargs="+", default=None, help="print the table of runs saved with --json")

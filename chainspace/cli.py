@@ -453,8 +453,9 @@ def fit(
              "robot, a low tripod), or either (then of a motion and its mirror image, which weak perspective "
              "cannot tell apart, the one nearer the rest pose is reported).")] = ViewFrom.above,
     search_ties: Annotated[bool, typer.Option(
-        "--search-ties", help="Also search for other motions that fit the tracks as well, and report "
-                              "the joints they leave ambiguous (several times slower).")] = False,
+        "--search-ties/--no-search-ties", help="Also search for other motions that fit the tracks as well, "
+                                               "and report the joints they leave ambiguous (on by default; "
+                                               "--no-search-ties is faster and says less).")] = True,
     overwrite: Overwrite = False,
 ) -> None:
     """Fit the robot's joint angles (Pinocchio) to a reconstruction or to 2D tracks.

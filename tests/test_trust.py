@@ -200,10 +200,11 @@ def test_fit_passes_fps_and_extra_frames(tmp_path, monkeypatch):
     assert np.isfinite(seen["W"][:, chain.joint_index("probe")]).all()  # its track was read
 
 
-@pytest.mark.parametrize("args, expected", [([], ("above", False)), (["--view-from", "below"], ("below", False)),
-                                           (["--view-from", "either", "--search-ties"], (None, True))])
+@pytest.mark.parametrize("args, expected", [([], ("above", True)), (["--view-from", "below"], ("below", True)),
+                                           (["--view-from", "either", "--no-search-ties"], (None, False))])
 def test_fit_passes_view_from_and_search_ties(tmp_path, monkeypatch, args, expected):
-    """`fit --view-from below|either --search-ties`: the API's view_from and search_ties from the shell."""
+    """`fit --view-from below|either --no-search-ties`: the API's view_from and search_ties from the shell
+    (the search on by default, as in the API)."""
     from types import SimpleNamespace
 
     import chainspace.reconstruction.pipeline as pipeline

@@ -104,7 +104,7 @@ def _film(chain: Any, setting: str, camera: str, n_frames: int, seed: int):
     return synthesize(chain, n_frames=n_frames, noise_px=1.0, seed=seed, camera=camera, **SETTINGS[setting])
 
 
-def _fit(chain: Any, trial: Any, seed: int, search_ties: bool = False, view_from: str = "above"):
+def _fit(chain: Any, trial: Any, seed: int, search_ties: bool = True, view_from: str = "above"):
     from ..reconstruction.pipeline import reconstruct
     from ..robot.fit import fit_joint_angles
 
@@ -118,7 +118,7 @@ def _fit(chain: Any, trial: Any, seed: int, search_ties: bool = False, view_from
 
 def run_full_range(robots: Sequence[str] = ROBOTS, settings: Sequence[str] = DEFAULT_SETTINGS, *,
                    camera: str = "pinhole", n_frames: int = 60, seeds: int = 1, first_seed: int = 0,
-                   search_ties: bool = False, progress: Callable[[str], None] | None = None,
+                   search_ties: bool = True, progress: Callable[[str], None] | None = None,
                    on_run: Callable[[list[dict[str, Any]]], None] | None = None) -> list[dict[str, Any]]:
     """One row per run (robot, setting, seed): robot, setting, seed, outcome ("fit", "refused",
     "crashed"), joints (see :func:`judge_joints`; empty without a fit), error_3d_mm, seconds, note.

@@ -31,6 +31,8 @@ joint's reasons are returned one per joint (``reasons``, ``JointFit.joint_reason
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from ..metrics import procrustes_align
@@ -374,10 +376,11 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     motion prior it was smoothed with, or None; ``wrong_side(fit)``: the camera-side rule, True where
     it validly sets a fit aside; ``side_why``: why that rule does not apply here ("" when it does).
     ``search``: also look beyond the fit's candidates (:func:`_exact_flips` refitted and
-    :func:`_other_branch`, :func:`_shaken`): the ``search_ties`` of ``fit_joint_angles``, off by default
-    because it costs several fits. ``camera_assumed``: the camera model was not given but assumed (weak
-    perspective, no intrinsics or image size): a fit that misses its points as a whole
-    (:func:`camera_misfit` above :data:`CAMERA_MISFIT_RATIO`) then has every joint poorly fitted."""
+    :func:`_other_branch`, :func:`_shaken`): the ``search_ties`` of ``fit_joint_angles`` (on by
+    default; it costs several fits, the restarts of a long sequence on sampled frames).
+    ``camera_assumed``: the camera model was not given but assumed (weak perspective, no intrinsics or
+    image size): a fit that misses its points as a whole (:func:`camera_misfit` above
+    :data:`CAMERA_MISFIT_RATIO`) then has every joint poorly fitted."""
     q, view = winner["out"][0], winner["out"][1]
     rel = gauge & ~blind
     free = (winner["free_prior"] if prior is not None else winner["free"]).copy()
@@ -389,11 +392,15 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     std[0, rel] = 0.0  # by definition: the joint is reported as its change since frame 0
     std[:, blind] = np.nan
     sigma = float(np.sqrt(var))
+
+    def settled(x: dict) -> bool:  # the camera-side rule sets this fit aside (it knows where its camera is)
+        return "down" in x and bool(wrong_side(x))
+
     scored = list(scored) + _exact_flips(robot, winner, scored, tracks, w, prior, free, sigma, search)
     if search:
         for base in [winner] + _runners_up(robot, winner, scored, SHAKE_RUNNERS_UP):
-            scored += _shaken(robot, base, scored, tracks, w, prior, free, ~rel)
-    alts = alternatives_of(robot, winner, scored, sigma, lambda x: "camera side" if "down" in x and wrong_side(x) else None)
+            scored += _shaken(robot, base, winner, scored, tracks, w, prior, free, ~rel, var, settled)
+    alts = alternatives_of(robot, winner, scored, sigma, lambda x: "camera side" if settled(x) else None)
     ambiguous, worst = ambiguous_joints(robot, robot.angles(q), alts, ~blind, rel)
     notes = []
     seen = np.isfinite(tracks).all(-1)
@@ -453,16 +460,12 @@ def _scorer(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict
     difference of the two objectives under the winner's camera: the same robust loss, plus the motion
     prior when there is one), so that a tie found by a search is a tie. ``rn`` (F, J) px: its
     residuals, when a refit already has them."""
-    from .solver import _smoothed_objective
-
     view, delta = winner["out"][1], winner["delta"]
 
     def objective(qa, rn=None):
         if rn is None:
             rn = np.linalg.norm(view.apply(robot.positions(qa))[0] - np.nan_to_num(tracks), axis=-1)
-        if prior is None:
-            return float((w * rn ** 2).sum())
-        return _smoothed_objective(prior, robot.angles(qa), rn, w, delta)
+        return _fit_objective(robot, qa, rn, w, delta, prior)
 
     base = next((s for s, x in scored if x is winner), min((s for s, _ in scored), default=0.0))
     own = objective(winner["out"][0])
@@ -620,31 +623,48 @@ def _twin_offsets(robot: RobotKinematics, a0: np.ndarray, k: int, last_blind: bo
 SHAKE_DEG = 20.0  # each observable joint's path shifted by this much either way: starts for other local minima
 SHAKE_FAR_DEG = 60.0  # and by this much: basins beyond the near shift's reach
 SHAKE_RUNNERS_UP = 2  # the scored motions nearest the winner's score that are shaken too (basins two moves away)
+# the shakes of a longer sequence run on every k-th frame, about this many, and only those that tie with
+# the winner there are refitted on every frame: a basin is a whole path, which the sampled frames show,
+# and a shake of 300 frames cost 5 of the UR10's 8 seconds
+SHAKE_FRAMES = 30
+SHAKE_REFITS = 4  # at most this many sampled shakes refitted on every frame (those that score lowest)
 
 
-def _shaken(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict]], tracks: np.ndarray,
-            w: np.ndarray, prior, free: np.ndarray, shake: np.ndarray) -> list[tuple[float, dict]]:
-    """Other local minima near the winner, scored as ``scored`` is: per free joint, the winner's path
-    shifted by :data:`SHAKE_DEG` and :data:`SHAKE_FAR_DEG` either way, the camera re-fitted to it, then
-    everything fitted again (smoothed by the motion prior when there is one). A minimum reached so that
-    scores within the tie tolerance is a motion the tracks do not tell from the winner. ``shake`` (nv,):
-    the joints to shift (not those seen relative to frame 0, whose shift is a turn of the camera).
-    ``winner`` may be any scored fit with ``out`` and ``delta`` (:func:`_runners_up`): its own shifts.
+def _fit_objective(robot: RobotKinematics, qa: np.ndarray, rn: np.ndarray, w: np.ndarray, delta: float | None,
+                   prior) -> float:
+    """A fit's objective: robust residuals (norms rn (F, J), weights w, Huber threshold delta), plus the
+    motion prior on its angles when there is one (None: squared residuals, as the unsmoothed fits)."""
+    from .solver import _smoothed_objective
 
-    Why: the fit's candidates are mirrors and flips of its own path; a shallow second basin, a few
-    degrees to tens away with the camera moved with it, is none of those. TALOS's left arm (weak
-    perspective, seed 0): the winner 8-14 degrees off on two shoulder joints with a reported std of
-    0.4 degrees, and the true motion's basin 11 noise variances *lower*, reached from a shift of 20
-    degrees of one joint; neither was in the fit's candidate set, so nothing was flagged."""
+    if prior is None:
+        return float((w * rn ** 2).sum())
+    return _smoothed_objective(prior, robot.angles(qa), rn, w, delta)
+
+
+def _sampled_prior(prior, F: int, nv: int, step: int, n: int):
+    """The acceleration prior of every ``step``-th frame of F (n frames), for the search on them: the same
+    joint accelerations cost the same per second (a second difference over ``step`` frames is step^2
+    times one over one frame: mu / step^4). Read from the prior's matrix (its frame 0 - frame 2 entry
+    is mu alone: nothing else couples frames two apart); its speed term, beyond a joint's sightings, is
+    left out (the search only finds starts: its ties are refitted and scored with the full prior)."""
+    from .solver import _motion_prior
+
+    if prior is None:
+        return None
+    mu = float(prior[0, 2 * nv]) if F >= 3 else 0.0
+    return _motion_prior(np.zeros((n, nv), bool), mu / step ** 4, np.inf)
+
+
+def _shake_fits(robot: RobotKinematics, q: np.ndarray, view, delta: float | None, tracks: np.ndarray,
+                w: np.ndarray, prior, free: np.ndarray, shake: np.ndarray) -> list[tuple]:
+    """Per joint in ``shake`` and shift (:data:`SHAKE_DEG`, :data:`SHAKE_FAR_DEG`, either way): q (F, nq)
+    with that joint's path shifted, the camera re-fitted to it, then everything fitted again (smoothed
+    by the motion prior when there is one). Returns the fits, (q, view, rn, ...) as the solvers do."""
     from .solver import _sequence_lm, _smooth_lm
     from .views import _camera_view, _View
 
-    q, view, delta = winner["out"][0], winner["out"][1], winner["delta"]
-    if getattr(view, "per_frame", False):
-        return []
     weak = isinstance(view, _View)
     ones = np.ones(view.n_params, bool)
-    score = _scorer(robot, winner, scored, tracks, w, prior)
     out = []
     for k in np.flatnonzero(free.any(0) & shake):
         for shift in (SHAKE_DEG, -SHAKE_DEG, SHAKE_FAR_DEG, -SHAKE_FAR_DEG):
@@ -656,10 +676,95 @@ def _shaken(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict
             else:  # the pinhole camera alone, from the winner's, to the shifted motion
                 v0 = _sequence_lm(robot, q0, tracks, w, view, np.zeros_like(free), ones, 30, 1e-10, delta)[1]
             if prior is None:
-                res = _sequence_lm(robot, q0, tracks, w, v0, free, ones, 50, 1e-8, delta)
+                out.append(_sequence_lm(robot, q0, tracks, w, v0, free, ones, 50, 1e-8, delta))
             else:
-                res = _smooth_lm(robot, robot.continuous(q0), tracks, w, v0, free, ones, 50, 1e-8, delta, prior)
-            out.append((score(res[0], res[2]), {"q": res[0]}))
+                out.append(_smooth_lm(robot, robot.continuous(q0), tracks, w, v0, free, ones, 50, 1e-8, delta, prior))
+    return out
+
+
+def _shaken(robot: RobotKinematics, base: dict, winner: dict, scored: list[tuple[float, dict]], tracks: np.ndarray,
+            w: np.ndarray, prior, free: np.ndarray, shake: np.ndarray, var: float,
+            settled: Callable[[dict], bool]) -> list[tuple[float, dict]]:
+    """Other local minima near the winner, scored as ``scored`` is (:func:`_shake_fits`: per free joint,
+    ``base``'s path shifted by :data:`SHAKE_DEG` and :data:`SHAKE_FAR_DEG` either way, the camera
+    re-fitted, everything fitted again). A minimum reached so that scores within the tie tolerance is a
+    motion the tracks do not tell from the winner. ``shake`` (nv,): the joints to shift (not those seen
+    relative to frame 0, whose shift is a turn of the camera). ``base``: the winner, or any scored fit
+    with ``out`` and ``delta`` (:func:`_runners_up`): its own shifts. ``var``: a noise variance in the
+    objective's units. ``settled(fit)``: whether the camera-side rule sets a fit aside.
+
+    A sequence longer than :data:`SHAKE_FRAMES` is shaken on every k-th frame (the motion prior made
+    for them, :func:`_sampled_prior`), and only the shakes that tie with the winner there, and are new
+    motions, are carried to every frame, refitted and scored (:func:`_sampled_shakes`; on the UR10's
+    300 frames the search cost 2.6 s of a 12.8 s fit, most of it refitting shakes that had slid back to
+    a motion scored already). Each carries where its camera looks from (``down``),
+    so that the camera-side rule sets aside a shake that ended seen from the wrong side, as it sets
+    aside the fit's own candidates (the milling arm, 300 frames: a shake ended on the mirror image seen
+    from below, and its first joint, 34 degrees away, was reported ambiguous).
+
+    Why: the fit's candidates are mirrors and flips of its own path; a shallow second basin, a few
+    degrees to tens away with the camera moved with it, is none of those. TALOS's left arm (weak
+    perspective, seed 0): the winner 8-14 degrees off on two shoulder joints with a reported std of
+    0.4 degrees, and the true motion's basin 11 noise variances *lower*, reached from a shift of 20
+    degrees of one joint; neither was in the fit's candidate set, so nothing was flagged."""
+    from .views import _looks_down
+
+    q, view, delta = base["out"][0], base["out"][1], base["delta"]
+    if getattr(view, "per_frame", False):
+        return []
+    score = _scorer(robot, base, scored, tracks, w, prior)
+    step = -(-len(q) // SHAKE_FRAMES)
+    fits = (_shake_fits(robot, q, view, delta, tracks, w, prior, free, shake) if step == 1 else
+            _sampled_shakes(robot, base, winner, scored, tracks, w, prior, free, shake, var, step, settled))
+    return [(score(r[0], r[2]), {"q": r[0], "down": _looks_down(r[1])}) for r in fits]
+
+
+def _sampled_shakes(robot: RobotKinematics, base: dict, winner: dict, scored: list[tuple[float, dict]],
+                    tracks: np.ndarray, w: np.ndarray, prior, free: np.ndarray, shake: np.ndarray, var: float,
+                    step: int, settled: Callable[[dict], bool]) -> list[tuple]:
+    """:func:`_shake_fits` of ``base``'s motion on every ``step``-th frame; those that end within the
+    tie tolerance of the winner refitted there (objectives in units where ``var`` is a noise variance),
+    that are no motion scored already and left standing (the winner, the fit's candidates that the
+    camera-side rule, ``settled``, does not set aside) and distinct from each other (at
+    most :data:`SHAKE_REFITS`, lowest first), carried to every frame (their change to the base motion
+    interpolated between the sampled frames) and refitted there. Returns the refits, (q, view, rn, ...)
+    as the solvers do."""
+    from .candidates import TIE_VARIANCES, _same_motion
+    from .solver import _sequence_lm, _smooth_lm
+
+    q, view, delta = base["out"][0], base["out"][1], base["delta"]
+    F = len(q)
+    sub = np.arange(0, F, step)
+    ts, ws, fs = tracks[sub], w[sub], free[sub]
+    prior_s = _sampled_prior(prior, F, robot.nv, step, len(sub))
+    ones = np.ones(view.n_params, bool)
+
+    def fitted(q0, tr, ww, v, fr, pr):
+        if pr is None:
+            return _sequence_lm(robot, q0, tr, ww, v, fr, ones, 50, 1e-8, delta)
+        return _smooth_lm(robot, robot.continuous(q0), tr, ww, v, fr, ones, 50, 1e-8, delta, pr)
+
+    reference = fitted(winner["out"][0][sub], ts, ws, winner["out"][1].take(sub), fs, prior_s)
+    bar = _fit_objective(robot, reference[0], reference[2], ws, delta, prior_s) + TIE_VARIANCES * var
+    # motions scored already and not set aside: refitting them again would add nothing (one set aside by
+    # the camera side is refitted: on every frame it may end seen from the other side, a tie then)
+    known = [reference[0]] + [x["q"][sub] for _, x in scored if "q" in x and len(x["q"]) == F and not settled(x)]
+
+    def new(r) -> bool:
+        return not any(_same_motion(robot, r[0], k) for k in known)
+
+    tied: list[tuple[float, tuple]] = []
+    for r in _shake_fits(robot, q[sub], view.take(sub), delta, ts, ws, prior_s, fs, shake):
+        objective = _fit_objective(robot, r[0], r[2], ws, delta, prior_s)
+        if objective <= bar and new(r) and not any(_same_motion(robot, r[0], t[1][0]) for t in tied):
+            tied.append((objective, r))
+    out = []
+    for _, r in sorted(tied, key=lambda t: t[0])[:SHAKE_REFITS]:
+        d = robot.wrap_angles(robot.angles(r[0]) - robot.angles(q[sub]))
+        dv = np.stack([np.interp(np.arange(F), sub, d[:, k]) for k in range(robot.nv)], 1)
+        # the one static camera of the sampled refit, for every frame
+        out.append(fitted(robot.integrate(q, dv * free, clip=True), tracks, w, r[1].take(np.zeros(F, int)), free,
+                          prior))
     return out
 
 
