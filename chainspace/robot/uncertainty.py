@@ -516,7 +516,7 @@ def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float,
                                               free[idx], np.zeros(view.n_params, bool), 20, 1e-8, delta)
             qs, rn = qs.reshape(K, F, -1), rn.reshape(K, F, -1)
         else:  # smoothed as the winner was (a path refitted frame by frame is rough, which the prior charges)
-            step = -(-F // SHAKE_FRAMES)
+            step = _sample_step(F)
             if step > 1:  # a long sequence: only the motions that tie on sampled frames are refitted on all
                 distinct = _tied_on_samples(robot, winner, distinct, tracks, w, prior, free, sigma ** 2, step)
                 if not distinct:
@@ -660,14 +660,15 @@ def _sampled_prior(prior, F: int, nv: int, step: int, n: int):
     return _motion_prior(np.zeros((n, nv), bool), mu / step ** 4, np.inf)
 
 
-def _shake_fits(robot: RobotKinematics, q: np.ndarray, view, delta: float | None, tracks: np.ndarray,
-                w: np.ndarray, prior, free: np.ndarray, shake: np.ndarray) -> list[tuple]:
+def _shake_fits(robot: RobotKinematics, q: np.ndarray, view, problem: "_Samples", shake: np.ndarray) -> list[tuple]:
     """Per joint in ``shake`` and shift (:data:`SHAKE_DEG`, :data:`SHAKE_FAR_DEG`, either way): q (F, nq)
-    with that joint's path shifted, the camera re-fitted to it, then everything fitted again (smoothed
-    by the motion prior when there is one). Returns the fits, (q, view, rn, ...) as the solvers do."""
-    from .solver import _sequence_lm, _smooth_lm
+    with that joint's path shifted, the camera re-fitted to it, then everything fitted again on
+    ``problem``'s frames (:meth:`_Samples.fit`; q and view are for those frames). Returns the fits,
+    (q, view, rn, ...) as the solvers do."""
+    from .solver import _sequence_lm
     from .views import _camera_view, _View
 
+    tracks, w, free = problem.tracks, problem.w, problem.free
     weak = isinstance(view, _View)
     ones = np.ones(view.n_params, bool)
     out = []
@@ -679,12 +680,14 @@ def _shake_fits(robot: RobotKinematics, q: np.ndarray, view, delta: float | None
             if weak:
                 v0 = _camera_view(robot.positions(q0), tracks, w, False)
             else:  # the pinhole camera alone, from the winner's, to the shifted motion
-                v0 = _sequence_lm(robot, q0, tracks, w, view, np.zeros_like(free), ones, 30, 1e-10, delta)[1]
-            if prior is None:
-                out.append(_sequence_lm(robot, q0, tracks, w, v0, free, ones, 50, 1e-8, delta))
-            else:
-                out.append(_smooth_lm(robot, robot.continuous(q0), tracks, w, v0, free, ones, 50, 1e-8, delta, prior))
+                v0 = _sequence_lm(robot, q0, tracks, w, view, np.zeros_like(free), ones, 30, 1e-10, problem.delta)[1]
+            out.append(problem.fit(q0, v0))
     return out
+
+
+def _sample_step(n_frames: int) -> int:
+    """The stride that leaves about :data:`SHAKE_FRAMES` frames of a sequence for its searches (1: all)."""
+    return -(-n_frames // SHAKE_FRAMES)
 
 
 def _shaken(robot: RobotKinematics, base: dict, winner: dict, scored: list[tuple[float, dict]], tracks: np.ndarray,
@@ -718,8 +721,8 @@ def _shaken(robot: RobotKinematics, base: dict, winner: dict, scored: list[tuple
     if getattr(view, "per_frame", False):
         return []
     score = _scorer(robot, base, scored, tracks, w, prior)
-    step = -(-len(q) // SHAKE_FRAMES)
-    fits = (_shake_fits(robot, q, view, delta, tracks, w, prior, free, shake) if step == 1 else
+    step = _sample_step(len(q))
+    fits = (_shake_fits(robot, q, view, _Samples(robot, tracks, w, prior, free, 1, delta), shake) if step == 1 else
             _sampled_shakes(robot, base, winner, scored, tracks, w, prior, free, shake, var, step, settled))
     return [(score(r[0], r[2]), {"q": r[0], "down": _looks_down(r[1])}) for r in fits]
 
@@ -798,8 +801,7 @@ def _sampled_shakes(robot: RobotKinematics, base: dict, winner: dict, scored: li
         return not any(_same_motion(robot, r[0], k) for k in known)
 
     tied: list[tuple[float, tuple]] = []
-    for r in _shake_fits(robot, q[sub], view.take(sub), base["delta"], samples.tracks, samples.w, samples.prior,
-                         samples.free, shake):
+    for r in _shake_fits(robot, q[sub], view.take(sub), samples, shake):
         objective = samples.objective(r)
         if objective <= bar and new(r) and not any(_same_motion(robot, r[0], t[1][0]) for t in tied):
             tied.append((objective, r))
