@@ -203,8 +203,9 @@ from .views import _affine_camera, _align, _camera_view, _looks_down, similarity
 from .solver import _huber, _motion_prior, _noise_sigma, _rms_per_frame, _robust_scale, _sequence_lm
 from .starts import _fit_3d, _initial_camera, _sequential_ik
 from .observability import _fill_unseen, _gauge_directions, _hold, _notes, _structural, _unseen, _weights
-from .candidates import (FACE_ON_DEG, TIE_VARIANCES, _base_keeping_mirror, _face_on_planes, _far_poses, _frame_ranges,
-                         _mirror_targets, _nearest_rest_branch, _same_motion, _static_line_starts, _viterbi_reanchored)
+from .candidates import (FACE_ON_DEG, SYMMETRY_MIRROR, TIE_VARIANCES, _base_keeping_mirror, _face_on_planes,
+                         _far_poses, _frame_ranges, _mirror_targets, _nearest_rest_branch, _same_motion,
+                         _static_line_starts, _viterbi_reanchored)
 from .selection import _most_probable, _prefer_rest, view_side_valid
 from .uncertainty import CAMERA_MISFIT_RATIO, assess_fit, camera_misfit, track_jitter
 
@@ -681,7 +682,7 @@ def fit_joint_angles(
                 reflected.append(r0)
                 stage(f"robot fit: refining the best fit's two reflections on the tracks (round %d of at most "
                       f"{REFLECTION_ROUNDS})", len(reflected))
-                alts = refined((c for M in (depth_mirror(r0), np.diag([1.0, -1.0, 1.0])) for c in reflection(r0, M)),
+                alts = refined((c for M in (depth_mirror(r0), SYMMETRY_MIRROR) for c in reflection(r0, M)),
                                results)
                 results, mirror_tied = order(results + alts)
             if not per_frame:
