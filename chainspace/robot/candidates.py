@@ -405,6 +405,31 @@ def _base_keeping_mirror(robot: RobotKinematics, tracked: np.ndarray) -> Callabl
     return lambda X: (X - c0) @ G + c0
 
 
+def _mirror_signs(robot: RobotKinematics, mirror: Callable[[np.ndarray], np.ndarray]) -> np.ndarray | None:
+    """Signs s (nv,) such that the angles s * a pose the robot where ``mirror`` (a reflection of base-frame
+    points (..., J, 3), as :func:`_base_keeping_mirror` returns) puts the points of a, for every a: -1
+    for a joint whose axis lies in the mirror's plane, +1 for one across it (a mirror-symmetric arm). None
+    where no such signs exist (a quadruped's legs mirror onto each other). Read joint by joint from the
+    zero pose, checked on random poses."""
+    nv = robot.nv
+    turned = np.vstack([0.7 * np.eye(nv), -0.7 * np.eye(nv)])  # each joint alone, either way
+    pos = robot.positions(robot.from_angles(turned)).reshape(2, nv, -1, 3)
+    target = mirror(pos[0])
+    s = np.where(np.abs(pos[1] - target).max((1, 2)) < np.abs(pos[0] - target).max((1, 2)), -1.0, 1.0)
+    a = robot.angles(_random_q(robot, np.random.default_rng(0), 4))
+    miss = np.abs(robot.positions(robot.from_angles(s * a)) - mirror(robot.positions(robot.from_angles(a)))).max()
+    return s if miss < 1e-6 * robot.reach() else None
+
+
+def _mirrored_motion(robot: RobotKinematics, q: np.ndarray, mirror: Callable[[np.ndarray], np.ndarray]
+                     ) -> np.ndarray | None:
+    """The motion (F, nq) whose points are q's (F, nq) reflected by ``mirror``, exactly, in every frame
+    (:func:`_mirror_signs`: each joint's angle kept or negated; within the limits), or None where the
+    robot has no such mirror."""
+    s = _mirror_signs(robot, mirror)
+    return None if s is None else robot.continuous(robot.clip(robot.from_angles(s * robot.angles(q))))
+
+
 def _mirror_pose(robot: RobotKinematics, q: np.ndarray, free: np.ndarray) -> np.ndarray | None:
     """The motion (F, nq) that puts every tracked point where q (F, nq) puts it mirrored by
     :data:`SYMMETRY_MIRROR`, or None when the robot cannot take that pose (within a thousandth of its

@@ -204,8 +204,8 @@ from .solver import _huber, _motion_prior, _noise_sigma, _rms_per_frame, _robust
 from .starts import _fit_3d, _initial_camera, _sequential_ik
 from .observability import _fill_unseen, _gauge_directions, _hold, _notes, _structural, _unseen, _weights
 from .candidates import (FACE_ON_DEG, SYMMETRY_MIRROR, TIE_VARIANCES, _base_keeping_mirror, _face_on_planes,
-                         _far_poses, _frame_ranges, _mirror_targets, _nearest_rest_branch, _same_motion,
-                         _static_line_starts, _viterbi_reanchored)
+                         _far_poses, _frame_ranges, _mirror_targets, _mirrored_motion, _nearest_rest_branch,
+                         _same_motion, _static_line_starts, _viterbi_reanchored)
 from .selection import _most_probable, _prefer_rest, view_side_valid
 from .uncertainty import CAMERA_MISFIT_RATIO, assess_fit, camera_misfit, track_jitter
 
@@ -371,8 +371,8 @@ def fit_joint_angles(
     search_ties
         Also search beyond the fit's own candidates for motions that fit the tracks as well (depth flips
         refitted to the tracks, the best other continuous branch frame by frame, restarts with each joint
-        shifted by ``uncertainty.SHAKE_DEG`` and ``SHAKE_FAR_DEG``, from the reported fit and the two
-        runners-up; on a long sequence the restarts run on about ``uncertainty.SHAKE_FRAMES`` sampled
+        shifted by ``uncertainty.SHAKE_DEG`` and ``SHAKE_FAR_DEG`` (and half a turn), from the reported fit
+        and the two runners-up; on a long sequence the restarts run on about ``uncertainty.SHAKE_FRAMES`` sampled
         frames), and report those found in ``alternatives``/``ambiguous``. On by default: without it, of
         384 full-range runs through a weak camera (30 frames) 10 kept a joint 2-153 degrees off reported
         observable (a basin the fit's candidates do not reach), with it 1 (docs/benchmarks.md). False
@@ -646,11 +646,25 @@ def fit_joint_angles(
                     far = fitted(q_s)
                     if (w3 * far[2] ** 2).sum() < (w3 * best[2] ** 2).sum():
                         best, whole = far, legs_mirror
+            fits = [(best, whole)]
+            exact = _mirrored_motion(robot, r["out"][0], base_mirror) if base_mirror is not None else None
+            if exact is not None:
+                # a mirror-symmetric robot's mirror image, joint by joint, first where it fits the mirrored
+                # points at least as well: the 3D fit reaches them frame by frame, on any branch of the wrist
+                # in each frame, and the motion prior's refit of such a path can end in another basin. The
+                # milling arm from below (full ranges, seed 33): the winner seen from above, its reflected
+                # start's wrist jumping between branches, smoothed 100 times higher; the first joint reported
+                # 50 degrees off, unflagged. The 3D fit's own path stays a candidate: from a poor winner it
+                # can lead to a better basin than the exact mirror of that winner (the Z1 from below, seed 26)
+                mirrored = fitted(exact)
+                if not _same_motion(robot, mirrored[0], best[0]):
+                    first = (w3 * mirrored[2] ** 2).sum() <= (w3 * best[2] ** 2).sum()
+                    fits.insert(0 if first else 1, (mirrored, legs_mirror))
             # the partial mirrors are whole paths through every frame: refined from all of them, since
             # the per-frame IK from their first frame drifted onto the hand's other branches (the Kinova);
             # so is a quadruped's whole mirror (per-frame IK drifted onto its legs' other branches; an
             # arm's whole mirror refined as a whole path ended in a wrong basin of the xArm7's wrist)
-            return [candidate(best[0], best[3], best[4], whole_path=whole)] + \
+            return [candidate(f[0], f[3], f[4], whole_path=w) for f, w in fits] + \
                 [candidate(q_s, robot.positions(q_s), True, whole_path=True) for q_s in partial]
 
         def depth_mirror(r):

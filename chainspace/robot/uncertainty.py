@@ -627,6 +627,10 @@ def _twin_offsets(robot: RobotKinematics, a0: np.ndarray, k: int, last_blind: bo
 
 SHAKE_DEG = 20.0  # each observable joint's path shifted by this much either way: starts for other local minima
 SHAKE_FAR_DEG = 60.0  # and by this much: basins beyond the near shift's reach
+# and a turning joint by half a turn: the double pendulum's one moving point, nearly still (2.6 degrees
+# over 30 frames, weak camera, full ranges, seed 33): a static triangle that a camera turned the other
+# way sees alike with the joint 167 degrees away, tied (0.2 px^2 apart), and no shift above reached it
+SHAKE_TURN_DEG = 180.0
 SHAKE_RUNNERS_UP = 2  # the scored motions nearest the winner's score that are shaken too (basins two moves away)
 # the shakes of a longer sequence run on every k-th frame, about this many, and only those that tie with
 # the winner there are refitted on every frame: a basin is a whole path, which the sampled frames show,
@@ -660,8 +664,10 @@ def _sampled_prior(prior, F: int, nv: int, step: int, n: int):
     return _motion_prior(np.zeros((n, nv), bool), mu / step ** 4, np.inf)
 
 
-def _shake_fits(robot: RobotKinematics, q: np.ndarray, view, problem: "_Samples", shake: np.ndarray) -> list[tuple]:
-    """Per joint in ``shake`` and shift (:data:`SHAKE_DEG`, :data:`SHAKE_FAR_DEG`, either way): q (F, nq)
+def _shake_fits(robot: RobotKinematics, q: np.ndarray, view, problem: "_Samples", shake: np.ndarray,
+                turn: bool = False) -> list[tuple]:
+    """Per joint in ``shake`` and shift (:data:`SHAKE_DEG`, :data:`SHAKE_FAR_DEG`, either way, and with
+    ``turn`` a turning joint by :data:`SHAKE_TURN_DEG`): q (F, nq)
     with that joint's path shifted, the camera re-fitted to it, then everything fitted again on
     ``problem``'s frames (:meth:`_Samples.fit`; q and view are for those frames). Returns the fits,
     (q, view, rn, ...) as the solvers do."""
@@ -673,7 +679,8 @@ def _shake_fits(robot: RobotKinematics, q: np.ndarray, view, problem: "_Samples"
     ones = np.ones(view.n_params, bool)
     out = []
     for k in np.flatnonzero(free.any(0) & shake):
-        for shift in (SHAKE_DEG, -SHAKE_DEG, SHAKE_FAR_DEG, -SHAKE_FAR_DEG):
+        half = (SHAKE_TURN_DEG,) if turn and robot.turns_v[k] else ()
+        for shift in (SHAKE_DEG, -SHAKE_DEG, SHAKE_FAR_DEG, -SHAKE_FAR_DEG) + half:
             dv = np.zeros((len(q), robot.nv))
             dv[:, k] = np.radians(shift)
             q0 = robot.integrate(q, dv * free, clip=True)
@@ -694,12 +701,13 @@ def _shaken(robot: RobotKinematics, base: dict, winner: dict, scored: list[tuple
             w: np.ndarray, prior, free: np.ndarray, shake: np.ndarray, var: float,
             settled: Callable[[dict], bool]) -> list[tuple[float, dict]]:
     """Other local minima near the winner, scored as ``scored`` is (:func:`_shake_fits`: per free joint,
-    ``base``'s path shifted by :data:`SHAKE_DEG` and :data:`SHAKE_FAR_DEG` either way, the camera
-    re-fitted, everything fitted again). A minimum reached so that scores within the tie tolerance is a
-    motion the tracks do not tell from the winner. ``shake`` (nv,): the joints to shift (not those seen
-    relative to frame 0, whose shift is a turn of the camera). ``base``: the winner, or any scored fit
-    with ``out`` and ``delta`` (:func:`_runners_up`): its own shifts. ``var``: a noise variance in the
-    objective's units. ``settled(fit)``: whether the camera-side rule sets a fit aside.
+    ``base``'s path shifted by :data:`SHAKE_DEG` and :data:`SHAKE_FAR_DEG` either way, and the winner's
+    turning joints by :data:`SHAKE_TURN_DEG`, the camera re-fitted, everything fitted again). A minimum reached
+    so that scores within the tie tolerance is a motion the tracks do not tell from the winner. ``shake``
+    (nv,): the joints to shift (not those seen relative to frame 0, whose shift is a turn of the camera).
+    ``base``: the winner, or any scored fit with ``out`` and ``delta`` (:func:`_runners_up`): its own
+    shifts. ``var``: a noise variance in the objective's units. ``settled(fit)``: whether the camera-side
+    rule sets a fit aside.
 
     A sequence longer than :data:`SHAKE_FRAMES` is shaken on every k-th frame (the motion prior made
     for them, :func:`_sampled_prior`), and only the shakes that tie with the winner there, and are new
@@ -722,8 +730,9 @@ def _shaken(robot: RobotKinematics, base: dict, winner: dict, scored: list[tuple
         return []
     score = _scorer(robot, base, scored, tracks, w, prior)
     step = _sample_step(len(q))
-    fits = (_shake_fits(robot, q, view, _Samples(robot, tracks, w, prior, free, 1, delta), shake) if step == 1 else
-            _sampled_shakes(robot, base, winner, scored, tracks, w, prior, free, shake, var, step, settled))
+    turn = True
+    fits = (_shake_fits(robot, q, view, _Samples(robot, tracks, w, prior, free, 1, delta), shake, turn) if step == 1
+            else _sampled_shakes(robot, base, winner, scored, tracks, w, prior, free, shake, var, step, settled, turn))
     return [(score(r[0], r[2]), {"q": r[0], "down": _looks_down(r[1])}) for r in fits]
 
 
@@ -778,9 +787,9 @@ def _tied_on_samples(robot: RobotKinematics, winner: dict, motions: list[np.ndar
 
 def _sampled_shakes(robot: RobotKinematics, base: dict, winner: dict, scored: list[tuple[float, dict]],
                     tracks: np.ndarray, w: np.ndarray, prior, free: np.ndarray, shake: np.ndarray, var: float,
-                    step: int, settled: Callable[[dict], bool]) -> list[tuple]:
-    """:func:`_shake_fits` of ``base``'s motion on every ``step``-th frame; those that end within the
-    tie tolerance of the winner refitted there (objectives in units where ``var`` is a noise variance),
+                    step: int, settled: Callable[[dict], bool], turn: bool = False) -> list[tuple]:
+    """:func:`_shake_fits` of ``base``'s motion on every ``step``-th frame (``turn`` as there); those that
+    end within the tie tolerance of the winner refitted there (objectives in units where ``var`` is a noise variance),
     that are no motion scored already and left standing (the winner, the fit's candidates that the
     camera-side rule, ``settled``, does not set aside) and distinct from each other (at
     most :data:`SHAKE_REFITS`, lowest first), carried to every frame (their change to the base motion
@@ -801,7 +810,7 @@ def _sampled_shakes(robot: RobotKinematics, base: dict, winner: dict, scored: li
         return not any(_same_motion(robot, r[0], k) for k in known)
 
     tied: list[tuple[float, tuple]] = []
-    for r in _shake_fits(robot, q[sub], view.take(sub), samples, shake):
+    for r in _shake_fits(robot, q[sub], view.take(sub), samples, shake, turn):
         objective = samples.objective(r)
         if objective <= bar and new(r) and not any(_same_motion(robot, r[0], t[1][0]) for t in tied):
             tied.append((objective, r))
