@@ -376,7 +376,7 @@ def fit_joint_angles(
         frames), and report those found in ``alternatives``/``ambiguous``. On by default: without it, of
         384 full-range runs through a weak camera (30 frames) 10 kept a joint 2-153 degrees off reported
         observable (a basin the fit's candidates do not reach), with it 1 (docs/benchmarks.md). False
-        saves its cost: a 30-frame fit takes about 1.3 times as long with it, a 300-frame one 1.1-1.25
+        saves its cost: a 30-frame fit takes about 1.3 times as long with it, a 300-frame one 1.2-1.3
         times. The reported motion is the same either way.
 
     Returns

@@ -664,10 +664,9 @@ def _sampled_prior(prior, F: int, nv: int, step: int, n: int):
     return _motion_prior(np.zeros((n, nv), bool), mu / step ** 4, np.inf)
 
 
-def _shake_fits(robot: RobotKinematics, q: np.ndarray, view, problem: "_Samples", shake: np.ndarray,
-                turn: bool = False) -> list[tuple]:
-    """Per joint in ``shake`` and shift (:data:`SHAKE_DEG`, :data:`SHAKE_FAR_DEG`, either way, and with
-    ``turn`` a turning joint by :data:`SHAKE_TURN_DEG`): q (F, nq)
+def _shake_fits(robot: RobotKinematics, q: np.ndarray, view, problem: "_Samples", shake: np.ndarray) -> list[tuple]:
+    """Per joint in ``shake`` and shift (:data:`SHAKE_DEG`, :data:`SHAKE_FAR_DEG`, either way, and a
+    turning joint by :data:`SHAKE_TURN_DEG`): q (F, nq)
     with that joint's path shifted, the camera re-fitted to it, then everything fitted again on
     ``problem``'s frames (:meth:`_Samples.fit`; q and view are for those frames). Returns the fits,
     (q, view, rn, ...) as the solvers do."""
@@ -679,7 +678,7 @@ def _shake_fits(robot: RobotKinematics, q: np.ndarray, view, problem: "_Samples"
     ones = np.ones(view.n_params, bool)
     out = []
     for k in np.flatnonzero(free.any(0) & shake):
-        half = (SHAKE_TURN_DEG,) if turn and robot.turns_v[k] else ()
+        half = (SHAKE_TURN_DEG,) if robot.turns_v[k] else ()
         for shift in (SHAKE_DEG, -SHAKE_DEG, SHAKE_FAR_DEG, -SHAKE_FAR_DEG) + half:
             dv = np.zeros((len(q), robot.nv))
             dv[:, k] = np.radians(shift)
@@ -701,9 +700,9 @@ def _shaken(robot: RobotKinematics, base: dict, winner: dict, scored: list[tuple
             w: np.ndarray, prior, free: np.ndarray, shake: np.ndarray, var: float,
             settled: Callable[[dict], bool]) -> list[tuple[float, dict]]:
     """Other local minima near the winner, scored as ``scored`` is (:func:`_shake_fits`: per free joint,
-    ``base``'s path shifted by :data:`SHAKE_DEG` and :data:`SHAKE_FAR_DEG` either way, and the winner's
-    turning joints by :data:`SHAKE_TURN_DEG`, the camera re-fitted, everything fitted again). A minimum reached
-    so that scores within the tie tolerance is a motion the tracks do not tell from the winner. ``shake``
+    ``base``'s path shifted by :data:`SHAKE_DEG` and :data:`SHAKE_FAR_DEG` either way, a turning joint's
+    also by :data:`SHAKE_TURN_DEG`, the camera re-fitted, everything fitted again). A minimum reached so
+    that scores within the tie tolerance is a motion the tracks do not tell from the winner. ``shake``
     (nv,): the joints to shift (not those seen relative to frame 0, whose shift is a turn of the camera).
     ``base``: the winner, or any scored fit with ``out`` and ``delta`` (:func:`_runners_up`): its own
     shifts. ``var``: a noise variance in the objective's units. ``settled(fit)``: whether the camera-side
@@ -730,9 +729,8 @@ def _shaken(robot: RobotKinematics, base: dict, winner: dict, scored: list[tuple
         return []
     score = _scorer(robot, base, scored, tracks, w, prior)
     step = _sample_step(len(q))
-    turn = True
-    fits = (_shake_fits(robot, q, view, _Samples(robot, tracks, w, prior, free, 1, delta), shake, turn) if step == 1
-            else _sampled_shakes(robot, base, winner, scored, tracks, w, prior, free, shake, var, step, settled, turn))
+    fits = (_shake_fits(robot, q, view, _Samples(robot, tracks, w, prior, free, 1, delta), shake) if step == 1 else
+            _sampled_shakes(robot, base, winner, scored, tracks, w, prior, free, shake, var, step, settled))
     return [(score(r[0], r[2]), {"q": r[0], "down": _looks_down(r[1])}) for r in fits]
 
 
@@ -787,9 +785,9 @@ def _tied_on_samples(robot: RobotKinematics, winner: dict, motions: list[np.ndar
 
 def _sampled_shakes(robot: RobotKinematics, base: dict, winner: dict, scored: list[tuple[float, dict]],
                     tracks: np.ndarray, w: np.ndarray, prior, free: np.ndarray, shake: np.ndarray, var: float,
-                    step: int, settled: Callable[[dict], bool], turn: bool = False) -> list[tuple]:
-    """:func:`_shake_fits` of ``base``'s motion on every ``step``-th frame (``turn`` as there); those that
-    end within the tie tolerance of the winner refitted there (objectives in units where ``var`` is a noise variance),
+                    step: int, settled: Callable[[dict], bool]) -> list[tuple]:
+    """:func:`_shake_fits` of ``base``'s motion on every ``step``-th frame; those that end within the
+    tie tolerance of the winner refitted there (objectives in units where ``var`` is a noise variance),
     that are no motion scored already and left standing (the winner, the fit's candidates that the
     camera-side rule, ``settled``, does not set aside) and distinct from each other (at
     most :data:`SHAKE_REFITS`, lowest first), carried to every frame (their change to the base motion
@@ -810,7 +808,7 @@ def _sampled_shakes(robot: RobotKinematics, base: dict, winner: dict, scored: li
         return not any(_same_motion(robot, r[0], k) for k in known)
 
     tied: list[tuple[float, tuple]] = []
-    for r in _shake_fits(robot, q[sub], view.take(sub), samples, shake, turn):
+    for r in _shake_fits(robot, q[sub], view.take(sub), samples, shake):
         objective = samples.objective(r)
         if objective <= bar and new(r) and not any(_same_motion(robot, r[0], t[1][0]) for t in tied):
             tied.append((objective, r))
