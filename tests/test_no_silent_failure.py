@@ -412,8 +412,8 @@ def test_a_mirror_symmetric_arm_is_mirrored_joint_by_joint_and_an_offset_arm_is_
     assert _mirror_signs(ur10, reflect) is None and _mirrored_motion(ur10, q, reflect) is None
 
 
-@pytest.mark.parametrize("robot, seed, arm", [("milling_arm", 33, 3), ("z1", 26, 5)])
-def test_told_the_camera_is_below_a_symmetric_arm_is_not_reported_seen_from_above(robot, seed, arm, example_urdf):
+@pytest.mark.parametrize("robot, seed, n_arm", [("milling_arm", 33, 3), ("z1", 26, 5)])
+def test_told_the_camera_is_below_a_symmetric_arm_is_not_reported_seen_from_above(robot, seed, n_arm, example_urdf):
     """The milling arm over its full ranges through a weak camera from below (seed 33, a fresh seed run once
     at the end of the previous change), ``view_from="below"``: the winner under the motion prior was seen
     from above, and its mirror image, reached by a 3D fit frame by frame with the wrist on a different
@@ -422,12 +422,12 @@ def test_told_the_camera_is_below_a_symmetric_arm_is_not_reported_seen_from_abov
     (candidates._mirrored_motion) and the side decides. The Z1 (seed 26) keeps the 3D fit's mirror as a
     candidate too: its first fits were poor (about 100 noise variances a frame), and only that path led
     to the true basin; with the exact mirror alone its five arm joints came out 3-98 degrees off (flagged).
-    Here the first ``arm`` joints are right, not only flagged (the milling arm's wrist is a true tie)."""
+    Here the first ``n_arm`` joints are right, not only flagged (the milling arm's wrist is a true tie)."""
     if robot != "milling_arm":
         example_urdf(robot)
     rows = _judged(robot, "full, below", seed, view_from="below")
     assert not [j for j in rows if j["verdict"] == "silent"], rows
-    assert max(j["error"] for j in rows[:arm]) < 2.0, rows[:arm]
+    assert max(j["error"] for j in rows[:n_arm]) < 2.0, rows[:n_arm]
 
 
 def test_a_joint_half_a_turn_away_with_the_camera_turned_is_searched_for(example_urdf):
