@@ -372,8 +372,8 @@ def fit_joint_angles(
         Also search beyond the fit's own candidates for motions that fit the tracks as well (depth flips
         refitted to the tracks, the best other continuous branch frame by frame, restarts with each joint
         shifted by ``uncertainty.SHAKE_DEG`` and ``SHAKE_FAR_DEG`` (and half a turn), from the reported fit
-        and the two runners-up; on a long sequence the restarts run on about ``uncertainty.SHAKE_FRAMES`` sampled
-        frames), and report those found in ``alternatives``/``ambiguous``. On by default: without it, of
+        and the two runners-up; on a long sequence the restarts run on about ``uncertainty.SHAKE_FRAMES``
+        sampled frames), and report those found in ``alternatives``/``ambiguous``. On by default: without it, of
         384 full-range runs through a weak camera (30 frames) 10 kept a joint 2-153 degrees off reported
         observable (a basin the fit's candidates do not reach), with it 1 (docs/benchmarks.md). False
         saves its cost: a 30-frame fit takes about 1.3 times as long with it, a 300-frame one 1.2-1.3
@@ -664,7 +664,7 @@ def fit_joint_angles(
             # the per-frame IK from their first frame drifted onto the hand's other branches (the Kinova);
             # so is a quadruped's whole mirror (per-frame IK drifted onto its legs' other branches; an
             # arm's whole mirror refined as a whole path ended in a wrong basin of the xArm7's wrist)
-            return [candidate(f[0], f[3], f[4], whole_path=w) for f, w in fits] + \
+            return [candidate(f[0], f[3], f[4], whole_path=whole_f) for f, whole_f in fits] + \
                 [candidate(q_s, robot.positions(q_s), True, whole_path=True) for q_s in partial]
 
         def depth_mirror(r):
