@@ -119,3 +119,21 @@ def test_a_solver_that_cannot_compile_falls_back_to_numpy(monkeypatch):
         assert np.median(out[2]) < 3.0
     finally:
         compiled._compiles.cache_clear()
+
+
+@pytest.mark.parametrize("kind", ["weak", "pinhole"])
+def test_rows_go_on_across_calls_as_in_one(monkeypatch, kind):
+    # between the iterations at which met starts merge, each row keeps its normal equations and cost
+    # (lm_rows' kept): cut into calls or not, every row takes the same steps, to the bit
+    from chainspace.robot import solver
+
+    robot = _robot("ur10")
+    q0, target, view = _problem(robot, kind, n=300, seed=2)
+    model = compiled.CompiledModel.of(robot)
+    args = (np.ones(target.shape[:2]), view, np.ones((len(q0), robot.nv), bool), 30, 1e-10, 2.0, None)
+    monkeypatch.setattr(solver, "MERGE_AT", ())
+    whole = solver._independent_rows(model, q0, target, *args)
+    monkeypatch.setattr(solver, "MERGE_AT", (1, 2, 3, 5, 8, 13, 21))
+    cut = solver._independent_rows(model, q0, target, *args)
+    for a, b in zip(whole[:1] + whole[2:], cut[:1] + cut[2:]):
+        np.testing.assert_array_equal(a, b)

@@ -271,13 +271,19 @@ def _integrate(q, dq, free, q_of_v, pair, limited, lower, upper, out):
 
 @_njit
 def lm_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, lam, active, last_it, rn, pos_out,
-            model):
+            kept, more, model):
     """Iterations it_from..it_to of :func:`chainspace.robot.solver._sequence_lm` (view held, rows independent)
     on every active row, in place: q (N, nq), lam, active (N,), the iteration at which each row
     stopped, and the residual norms rn (N, J) and points pos_out (N, J, 3) at its q. tz (N, J, D)
     targets, w (N, J) weights, M (N, D, 3) and T (N, D) each row's view (pinhole: M (N, 3, 3), T (N, 3) and
-    f, cxy; :func:`_predict`), free (N, nv), delta < 0: squares."""
+    f, cxy; :func:`_predict`), free (N, nv), delta < 0: squares.
+
+    kept = (H (N, nv, nv), g (N, nv), cost (N,), ready (N,)): a row's normal equations and cost at its q,
+    valid where ready. With ``more`` (a later call goes on from here) each row still active keeps them,
+    and skips its points and residuals, which the next call does not need; a row that starts ready then
+    does not evaluate its q again. The steps are the same either way."""
     limited, lower, upper, q_of_v, pair = model[15], model[16], model[17], model[19], model[20]
+    H_kept, g_kept, c_kept, ready = kept
     N, J, D = tz.shape
     nq, nv = q.shape[1], free.shape[1]
     nj = len(model[1])
@@ -290,8 +296,14 @@ def lm_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, l
         if not active[r]:
             continue
         qr[:] = q[r]
-        c_r = _evaluate(qr, tz[r], w[r], M[r], T[r], pinhole, f, cxy, delta, model, R, p, pos, res)
-        stale = placed = True
+        if ready[r]:  # H, g and the cost of qr from the call before; its placements are not at hand
+            H[:] = H_kept[r]
+            g[:] = g_kept[r]
+            c_r = c_kept[r]
+            stale = placed = False
+        else:
+            c_r = _evaluate(qr, tz[r], w[r], M[r], T[r], pinhole, f, cxy, delta, model, R, p, pos, res)
+            stale = placed = True
         for it in range(it_from, it_to + 1):
             if stale:  # the placements R, p are those of qr: its last evaluation
                 _normal_equations(w[r], M[r], T[r], pinhole, f, delta, free[r], model, R, p, pos, res, H, g, Jq, Wa,
@@ -326,9 +338,18 @@ def lm_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, l
             last_it[r] = it
             if not active[r]:
                 break
+        q[r] = qr
+        if more and active[r]:
+            if stale:
+                _normal_equations(w[r], M[r], T[r], pinhole, f, delta, free[r], model, R, p, pos, res, H, g, Jq, Wa,
+                                  Mk)
+            H_kept[r] = H
+            g_kept[r] = g
+            c_kept[r] = c_r
+            ready[r] = True
+            continue
         if not placed:  # the last trial was rejected: qr's points and residuals again
             _evaluate(qr, tz[r], w[r], M[r], T[r], pinhole, f, cxy, delta, model, R, p, pos, res)
-        q[r] = qr
         for k in range(J):
             n2 = 0.0
             for i in range(D):
@@ -353,20 +374,21 @@ MIN_ROWS_PER_THREAD = 256  # below it a thread's start costs more than its share
 
 
 def run_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, lam, active, last_it, rn, pos_out,
-             model):
+             kept, more, model):
     """:func:`lm_rows` with its rows shared among :func:`threads` threads (the compiled loop releases
     the GIL; rows are independent, so the numbers do not depend on the split)."""
     n = min(threads(), len(q) // MIN_ROWS_PER_THREAD)
     if n <= 1:
         lm_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, lam, active, last_it, rn, pos_out,
-                model)
+                kept, more, model)
         return
     key = (os.getpid(), n)
     pool = _pools.get(key) or _pools.setdefault(key, ThreadPoolExecutor(n, thread_name_prefix="chainspace-lm"))
     cuts = np.linspace(0, len(q), n + 1).astype(int)
     jobs = [pool.submit(lm_rows, *(x[a:b] for x in (q, tz, w, M, T)), pinhole, f, cxy, free[a:b], delta, tol,
                         it_from, it_to,
-                        *(x[a:b] for x in (lam, active, last_it, rn, pos_out)), model)
+                        *(x[a:b] for x in (lam, active, last_it, rn, pos_out)), tuple(x[a:b] for x in kept), more,
+                        model)
             for a, b in zip(cuts[:-1], cuts[1:])]
     for job in jobs:
         job.result()
@@ -399,4 +421,5 @@ def compile_now() -> None:
              np.zeros(1, i64), np.zeros(1, i64), np.zeros(1, bool))
     lm_rows(np.zeros((1, 1)), np.zeros((1, 1, 2)), np.ones((1, 1)), np.zeros((1, 2, 3)), np.zeros((1, 2)), False,
             1.0, np.zeros(2), np.ones((1, 1), bool), -1.0, 1e-8, 1, 1, np.full(1, 1e-4), np.ones(1, bool),
-            np.zeros(1, i64), np.zeros((1, 1)), np.zeros((1, 1, 3)), model)
+            np.zeros(1, i64), np.zeros((1, 1)), np.zeros((1, 1, 3)),
+            (np.zeros((1, 1, 1)), np.zeros((1, 1)), np.zeros(1), np.zeros(1, bool)), False, model)

@@ -362,12 +362,14 @@ def _independent_rows(model: CompiledModel, q: np.ndarray, tz: np.ndarray, w: np
         f, cxy = 1.0, np.zeros(2)
     lam, active = np.full(F, 1e-4), np.ones(F, bool)
     last, rn, pos = np.zeros(F, np.int64), np.empty((F, J)), np.empty((F, J, 3))
+    nv = free.shape[1]
+    kept = (np.empty((F, nv, nv)), np.empty((F, nv)), np.empty(F), np.zeros(F, bool))  # see lm_rows
     follow = np.arange(F)
     tz, w, free = (np.ascontiguousarray(a, dtype=t) for a, t in ((tz, float), (w, float), (free, bool)))
     start = 1
     for stop in [m for m in MERGE_AT if m < max_iter] + [max_iter]:
         run_rows(q, tz, w, M, T, pinhole, f, cxy, free, -1.0 if delta is None else float(delta), float(tol), start,
-                 stop, lam, active, last, rn, pos, model.args())
+                 stop, lam, active, last, rn, pos, kept, stop < max_iter, model.args())
         if not active.any():
             break
         if problem is not None and stop in MERGE_AT:
