@@ -430,9 +430,9 @@ def _mirrored_motion(robot: RobotKinematics, q: np.ndarray, mirror: Callable[[np
     return None if s is None else robot.continuous(robot.clip(robot.from_angles(s * robot.angles(q))))
 
 
-def _mirror_pose(robot: RobotKinematics, q: np.ndarray, free: np.ndarray) -> np.ndarray | None:
+def _mirror_pose(robot: RobotKinematics, q: np.ndarray, free: np.ndarray, within: float = 1e-3) -> np.ndarray | None:
     """The motion (F, nq) that puts every tracked point where q (F, nq) puts it mirrored by
-    :data:`SYMMETRY_MIRROR`, or None when the robot cannot take that pose (within a thousandth of its
+    :data:`SYMMETRY_MIRROR`, or None when the robot cannot take that pose (within ``within`` of its
     reach) in every frame: IK from q and from q's angles negated (the mirror of a symmetric arm)."""
     pos = robot.positions(q)
     target = pos @ SYMMETRY_MIRROR
@@ -443,13 +443,13 @@ def _mirror_pose(robot: RobotKinematics, q: np.ndarray, free: np.ndarray) -> np.
     qs = qs.reshape(2, F, -1)
     miss = np.linalg.norm(robot.positions(qs.reshape(2 * F, -1)).reshape(2, F, -1, 3) - target, axis=-1).max((1, 2))
     k = int(np.argmin(miss))
-    return robot.continuous(qs[k]) if miss[k] < 1e-3 * robot.reach() else None
+    return robot.continuous(qs[k]) if miss[k] < within * robot.reach() else None
 
 
-def _pinhole_twin(robot: RobotKinematics, q: np.ndarray, view, free: np.ndarray):
+def _pinhole_twin(robot: RobotKinematics, q: np.ndarray, view, free: np.ndarray, within: float = 1e-3):
     """The motion and static pinhole camera (q (F, nq), view) that see the mirror image of the fit
-    (q, ``view``) as that fit is seen, for a mirror-symmetric robot (:func:`_mirror_pose`); None for
-    another robot.
+    (q, ``view``) as that fit is seen, for a mirror-symmetric robot (:func:`_mirror_pose`, its points
+    within ``within`` of the reach of the mirror image's); None for another robot.
 
     A fit in front of its camera: the mirror image turned to face the camera as the fit does (its depth
     mirrored about the robot's mean depth), which projects as the fit does up to perspective's share:
@@ -462,7 +462,7 @@ def _pinhole_twin(robot: RobotKinematics, q: np.ndarray, view, free: np.ndarray)
     plus the motion prior, px^2; noise variance about 1.1) 169.0 for the true motion and 169.5 for its
     mirror image, a tie; from the turned starts alone the fit reached only the mirror's basin, 26
     degrees off, and reported it as settled."""
-    qm = _mirror_pose(robot, q, free)
+    qm = _mirror_pose(robot, q, free, within)
     if qm is None:
         return None
     R, t = view.R[0], view.t[0]
