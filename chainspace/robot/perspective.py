@@ -428,6 +428,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
         lead 798."""
         st = dict(lead["start"], q=q_m, view=_camera_view(robot.positions(q_m), tr, w, False))
         _, pv, q, _, _ = camera_start(st, [float(lead["view"].f)])
+        pv = replace(pv, fit_focal=fit_focal, fit_centre=fit_centre)
         return _sequence_lm(robot, q, tr, w, pv, lead["free"], np.ones(pv.n_params, bool), max_iter, tol,
                             lead["delta"])
 
