@@ -137,3 +137,52 @@ def test_rows_go_on_across_calls_as_in_one(monkeypatch, kind):
     cut = solver._independent_rows(model, q0, target, *args)
     for a, b in zip(whole[:1] + whole[2:], cut[:1] + cut[2:]):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("name", ["kinova", "ur10"])
+@pytest.mark.parametrize("kind,delta,free_camera", [("3d", None, "all"), ("weak", None, "all"),
+                                                    ("weak", 2.0, "rotation"), ("pinhole", 2.0, "all"),
+                                                    ("pinhole", None, "focal"), ("pinhole", 2.0, "centre")])
+def test_a_shared_camera_moves_with_the_joints_as_in_numpy(name, kind, delta, free_camera):
+    # lm_shared: every frame's joints and one camera free (the Schur complement's steps), from a camera
+    # turned 3 degrees and moved off the truth; the numpy solver's costs, iterations and camera
+    from dataclasses import replace
+
+    from chainspace.robot.views import _rotvec
+
+    robot = _robot(name)
+    q0, target, view = _problem(robot, kind, n=60, seed=3)
+    turn = _rotvec(np.array([0.04, -0.03, 0.02]))[None]
+    if kind == "pinhole":
+        view = replace(view, R=turn @ view.R, t=view.t + 0.02, f=view.f * (1.03 if free_camera != "all" else 1.0),
+                       fit_focal=free_camera != "all", fit_centre=free_camera == "centre")
+    else:
+        view = _View(view.S * 1.03, turn @ view.R, view.T + 0.01, view.cam_of)
+    free_view = np.ones(view.n_params, bool)
+    if free_camera == "rotation":
+        free_view[3:] = False
+    n = len(q0)
+    out = []
+    for use_compiled in (True, False):
+        robot.__dict__.pop("_compiled", None)
+        if not use_compiled:
+            robot._compiled = None
+        assert (compiled.CompiledModel.of(robot) is not None) == use_compiled
+        out.append(_sequence_lm(robot, q0, target, np.ones(target.shape[:2]), view, np.ones((n, robot.nv), bool),
+                                free_view, 40, 1e-10, delta))
+    a, b = out
+    cost_a, cost_b = (a[2] ** 2).sum(), (b[2] ** 2).sum()
+    assert abs(cost_a - cost_b) <= 1e-6 * cost_b + 1e-20
+    assert a[5] == b[5] and a[4].all() == b[4].all()
+    va, vb = a[1], b[1]
+    np.testing.assert_allclose(va.R, vb.R, atol=1e-6)
+    if kind == "pinhole":
+        np.testing.assert_allclose([va.f, *va.c], [vb.f, *vb.c], rtol=1e-6)
+        assert (va.f != view.f) == (free_camera != "all")
+        assert (va.c != view.c).any() == (free_camera == "centre")
+    else:
+        np.testing.assert_allclose(np.r_[va.S, va.T[0]], np.r_[vb.S, vb.T[0]], rtol=1e-6, atol=1e-9)
+        if free_camera == "rotation":
+            np.testing.assert_array_equal(np.r_[va.S, va.T[0]], np.r_[view.S, view.T[0]])
+    # a fit, not noise: the residuals are those of 1 px noise (or exact 3D points)
+    assert np.median(a[2]) < (1e-6 if kind == "3d" else 3.0)

@@ -1,14 +1,18 @@
-"""The solver's most frequent problem compiled (numba): Levenberg-Marquardt on many independent rows, each
-one configuration's joint angles against its own target under a held view.
+"""The solver's most frequent problems compiled (numba): Levenberg-Marquardt on many independent rows, each
+one configuration's joint angles against its own target under a held view (:func:`lm_rows`); and on a
+sequence's joint angles together with the one camera that every frame shares (:func:`lm_shared`).
 
 Why: the branch search, the depth flips and the sequential IK solve thousands of small problems (one per
 frame and start) a few dozen times per fit; in numpy each step of all of them took some forty array
 operations of a few floats per row, about 5 microseconds a row and step, most of a fit's time (issue 19).
 Here each row runs its own loop over the joints, its kinematics and its small normal equations in compiled
-code (about 1 microsecond a row and step for a 6-axis arm), and the rows are shared among threads.
+code (about 1 microsecond a row and step for a 6-axis arm), and the rows are shared among threads. The
+fits that move the camera too (the perspective fit's, the 3D fit's alignment) took another 40 % of a
+pinhole fit in numpy, some 19 microseconds a frame and iteration; compiled, about 6.
 
 The steps are those of :func:`chainspace.robot.solver._sequence_lm` (same damping, same stopping rules, the
-same iterations at which starts that met are merged), its numbers the same to rounding; rounding can send a
+same iterations at which starts that met are merged; the camera's part of a shared step by the same Schur
+complement), its numbers the same to rounding; rounding can send a
 row elsewhere along a direction its target leaves flat, at the same cost. Covered: the batched kinematics
 (:class:`chainspace.robot.kinematics._BatchedKinematics`: revolute, continuous, prismatic and mimic joints)
 seen through a weak-perspective or 3D view (:class:`chainspace.robot.views._View`) or a pinhole camera
@@ -166,51 +170,66 @@ def _evaluate(q, tz, w, M, T, pinhole, f, cxy, delta, model, R, p, pos, res):
 
 
 @_njit
+def _joint_axes(R, joints, scaling, axis, Wa):
+    """Each placed joint's axis in world axes, its scaling included, into Wa (njoints, 3)."""
+    for j in joints:
+        for i in range(3):
+            Wa[j, i] = scaling[j] * (R[j, i, 0] * axis[j, 0] + R[j, i, 1] * axis[j, 1] + R[j, i, 2] * axis[j, 2])
+
+
+@_njit
+def _point_rows(k, w, M, T, pinhole, f, delta, free, model, p, pos, res, Wa, Mk, Jq):
+    """Point k's rows of the Jacobian of the residuals by the joint velocities, Jq (D, nv) (held
+    directions' columns zero), and d prediction / d point Mk (D, 3), in place, at the placements p, pos;
+    returns its IRLS weight (Huber with threshold delta; delta < 0: squares)."""
+    joints, kind, column, carried, velocity = model[0], model[4], model[9], model[14], model[18]
+    D = res.shape[1]
+    n2 = 0.0
+    for i in range(D):
+        n2 += res[k, i] * res[k, i]
+    rn = np.sqrt(n2)
+    ww = w[k] if delta < 0 or rn <= delta else w[k] * delta / max(rn, 1e-300)
+    if pinhole:  # d pixels / d point: (f / z) (I | -(y_x, y_y) / z) R at the point's y = R x + t
+        x0, x1, x2 = pos[k, 0], pos[k, 1], pos[k, 2]
+        z = M[2, 0] * x0 + M[2, 1] * x1 + M[2, 2] * x2 + T[2]
+        z = z if abs(z) > 1e-9 else 1e-9
+        a = f / z
+        for i in range(2):
+            yz = (M[i, 0] * x0 + M[i, 1] * x1 + M[i, 2] * x2 + T[i]) / z
+            for m in range(3):
+                Mk[i, m] = a * M[i, m] - a * yz * M[2, m]
+    else:
+        for i in range(D):
+            for m in range(3):
+                Mk[i, m] = M[i, m]
+    Jq[:] = 0.0
+    for j in joints:
+        c = column[j]
+        v = velocity[c]
+        if kind[j] == FIXED or not carried[k, c] or not free[v]:
+            continue
+        if kind[j] != PRISMATIC:  # the point's velocity w x (x - o)
+            x0, x1, x2 = pos[k, 0] - p[j, 0], pos[k, 1] - p[j, 1], pos[k, 2] - p[j, 2]
+            v0, v1, v2 = Wa[j, 1] * x2 - Wa[j, 2] * x1, Wa[j, 2] * x0 - Wa[j, 0] * x2, Wa[j, 0] * x1 - Wa[j, 1] * x0
+        else:
+            v0, v1, v2 = Wa[j, 0], Wa[j, 1], Wa[j, 2]
+        for i in range(D):
+            Jq[i, v] += Mk[i, 0] * v0 + Mk[i, 1] * v1 + Mk[i, 2] * v2
+    return ww
+
+
+@_njit
 def _normal_equations(w, M, T, pinhole, f, delta, free, model, R, p, pos, res, H, g, Jq, Wa, Mk):
     """H (nv, nv) and g (nv,) of the IRLS-weighted residuals at the placements R, p (held directions'
     columns zero), in place; Jq (D, nv), Wa (njoints, 3) and Mk (D, 3) are scratch."""
-    joints, kind, axis, column, scaling, carried, velocity = model[0], model[4], model[5], model[9], model[10], \
-        model[14], model[18]
     nv, D = len(free), res.shape[1]
     H[:] = 0.0
     g[:] = 0.0
-    for j in joints:  # each joint's axis in world axes (its scaling included)
-        for i in range(3):
-            Wa[j, i] = scaling[j] * (R[j, i, 0] * axis[j, 0] + R[j, i, 1] * axis[j, 1] + R[j, i, 2] * axis[j, 2])
+    _joint_axes(R, model[0], model[10], model[5], Wa)
     for k in range(len(pos)):
         if w[k] == 0.0:
             continue
-        n2 = 0.0
-        for i in range(D):
-            n2 += res[k, i] * res[k, i]
-        rn = np.sqrt(n2)
-        ww = w[k] if delta < 0 or rn <= delta else w[k] * delta / max(rn, 1e-300)
-        if pinhole:  # d pixels / d point: (f / z) (I | -(y_x, y_y) / z) R at the point's y = R x + t
-            x0, x1, x2 = pos[k, 0], pos[k, 1], pos[k, 2]
-            z = M[2, 0] * x0 + M[2, 1] * x1 + M[2, 2] * x2 + T[2]
-            z = z if abs(z) > 1e-9 else 1e-9
-            a = f / z
-            for i in range(2):
-                yz = (M[i, 0] * x0 + M[i, 1] * x1 + M[i, 2] * x2 + T[i]) / z
-                for m in range(3):
-                    Mk[i, m] = a * M[i, m] - a * yz * M[2, m]
-        else:
-            for i in range(D):
-                for m in range(3):
-                    Mk[i, m] = M[i, m]
-        Jq[:] = 0.0
-        for j in joints:
-            c = column[j]
-            v = velocity[c]
-            if kind[j] == FIXED or not carried[k, c] or not free[v]:
-                continue
-            if kind[j] != PRISMATIC:  # the point's velocity w x (x - o)
-                x0, x1, x2 = pos[k, 0] - p[j, 0], pos[k, 1] - p[j, 1], pos[k, 2] - p[j, 2]
-                v0, v1, v2 = Wa[j, 1] * x2 - Wa[j, 2] * x1, Wa[j, 2] * x0 - Wa[j, 0] * x2, Wa[j, 0] * x1 - Wa[j, 1] * x0
-            else:
-                v0, v1, v2 = Wa[j, 0], Wa[j, 1], Wa[j, 2]
-            for i in range(D):
-                Jq[i, v] += Mk[i, 0] * v0 + Mk[i, 1] * v1 + Mk[i, 2] * v2
+        ww = _point_rows(k, w, M, T, pinhole, f, delta, free, model, p, pos, res, Wa, Mk, Jq)
         for a in range(nv):
             for i in range(D):
                 g[a] += ww * Jq[i, a] * res[k, i]
@@ -358,6 +377,265 @@ def lm_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, l
             pos_out[r, k] = pos[k]
 
 
+@_njit
+def _camera_rows(k, pos, R, t, sf, pinhole, fit_focal, fit_centre, free_view, Jc):
+    """Point k's rows of the Jacobian of its prediction by the shared camera's step, Jc (D, nc), in place
+    (held parameters' columns zero). Weak (``sf`` the scale s; s (R x)[:D] + t[:D]): rotation vector,
+    scale, translation; pinhole (``sf`` the focal f; f (y_x, y_y) / y_z + c at y = R x + t): rotation
+    vector, translation, then log f and the principal point where fitted: the steps of ``_View.moved``
+    and ``_PinholeView.moved``, whose rotation turns R x by w x (R x)."""
+    D = Jc.shape[0]
+    v = np.empty(3)  # R x
+    for i in range(3):
+        v[i] = R[i, 0] * pos[k, 0] + R[i, 1] * pos[k, 1] + R[i, 2] * pos[k, 2]
+    Jc[:] = 0.0
+    if pinhole:
+        z = v[2] + t[2]
+        z = z if abs(z) > 1e-9 else 1e-9
+        a = sf / z
+        for i in range(2):  # P = d pixels / d y: row i a (e_i - y_i / z e_z); P (-[v]^) and P
+            P0, P1, P2 = a * (i == 0), a * (i == 1), -a * (v[i] + t[i]) / z
+            Jc[i, 0] = P2 * v[1] - P1 * v[2]
+            Jc[i, 1] = P0 * v[2] - P2 * v[0]
+            Jc[i, 2] = P1 * v[0] - P0 * v[1]
+            Jc[i, 3], Jc[i, 4], Jc[i, 5] = P0, P1, P2
+        n = 6
+        if fit_focal:  # d u / d log f = f (y_x, y_y) / y_z
+            Jc[0, n] = a * (v[0] + t[0])
+            Jc[1, n] = a * (v[1] + t[1])
+            n += 1
+        if fit_centre:
+            Jc[0, n] = 1.0
+            Jc[1, n + 1] = 1.0
+    else:  # row i of -s [v]^: s (e_i x v); then v_i, and e_i
+        for i in range(D):
+            b, c = (i + 1) % 3, (i + 2) % 3
+            Jc[i, b] = sf * v[c]
+            Jc[i, c] = -sf * v[b]
+            Jc[i, 3] = v[i]
+            Jc[i, 4 + i] = 1.0
+    for c in range(Jc.shape[1]):
+        if not free_view[c]:
+            for i in range(D):
+                Jc[i, c] = 0.0
+
+
+@_njit
+def _rotation_step(w, R, out):
+    """out = exp(w^) R (Rodrigues; the rotation vector's step of the views' ``moved``)."""
+    th = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    a, b = (1.0, 0.5) if th < 1e-8 else (np.sin(th) / th, (1 - np.cos(th)) / (th * th))
+    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    E = np.eye(3) + a * K + b * (K @ K)
+    for i in range(3):
+        for k in range(3):
+            out[i, k] = E[i, 0] * R[0, k] + E[i, 1] * R[1, k] + E[i, 2] * R[2, k]
+
+
+@_njit
+def _view_arrays(R, t, sf, pinhole, D, M, T):
+    """The camera as :func:`_predict` takes it, into M, T: weak s R[:D], t[:D]; pinhole R, t."""
+    for i in range(3 if pinhole else D):
+        for k in range(3):
+            M[i, k] = R[i, k] if pinhole else sf * R[i, k]
+        T[i] = t[i]
+
+
+@_njit
+def _evaluate_all(q, tz, w, M, T, pinhole, f, cxy, delta, model, Rp, pp, pos, res, cost):
+    """:func:`_evaluate` of every frame: placements Rp (F, njoints, 3, 3), pp, points, residuals and costs."""
+    for r in range(len(q)):
+        cost[r] = _evaluate(q[r], tz[r], w[r], M, T, pinhole, f, cxy, delta, model, Rp[r], pp[r], pos[r], res[r])
+
+
+@_njit
+def _shared_blocks(w, M, T, R, t, sf, pinhole, fit_focal, fit_centre, delta, free, free_view, model, Rp, pp, pos,
+                   res, Hqq, Hqc, gq, Hcc, gc):
+    """The normal equations of every frame's joint angles and the one shared camera, in place: per frame
+    Hqq (F, nv, nv), Hqc (F, nv, nc), gq (F, nv); the camera's Hcc (nc, nc), gc (nc,) summed over frames."""
+    F, J, D = res.shape
+    nv, nc = free.shape[1], len(free_view)
+    Jq, Jc, Mk, Wa = np.empty((D, nv)), np.empty((D, nc)), np.empty((D, 3)), np.zeros((Rp.shape[1], 3))
+    Hqq[:] = 0.0
+    Hqc[:] = 0.0
+    gq[:] = 0.0
+    Hcc[:] = 0.0
+    gc[:] = 0.0
+    for r in range(F):
+        _joint_axes(Rp[r], model[0], model[10], model[5], Wa)
+        for k in range(J):
+            if w[r, k] == 0.0:
+                continue
+            ww = _point_rows(k, w[r], M, T, pinhole, sf, delta, free[r], model, pp[r], pos[r], res[r], Wa, Mk, Jq)
+            _camera_rows(k, pos[r], R, t, sf, pinhole, fit_focal, fit_centre, free_view, Jc)
+            for a in range(nv):
+                for i in range(D):
+                    gq[r, a] += ww * Jq[i, a] * res[r, k, i]
+                for b in range(a, nv):
+                    s = 0.0
+                    for i in range(D):
+                        s += Jq[i, a] * Jq[i, b]
+                    Hqq[r, a, b] += ww * s
+                for c in range(nc):
+                    s = 0.0
+                    for i in range(D):
+                        s += Jq[i, a] * Jc[i, c]
+                    Hqc[r, a, c] += ww * s
+            for c in range(nc):
+                for i in range(D):
+                    gc[c] += ww * Jc[i, c] * res[r, k, i]
+                for d in range(c, nc):
+                    s = 0.0
+                    for i in range(D):
+                        s += Jc[i, c] * Jc[i, d]
+                    Hcc[c, d] += ww * s
+        for a in range(nv):
+            for b in range(a):
+                Hqq[r, a, b] = Hqq[r, b, a]
+    for c in range(nc):
+        for d in range(c):
+            Hcc[c, d] = Hcc[d, c]
+
+
+@_njit
+def _schur_step(Hqq, Hqc, gq, Hcc, gc, lam, free, free_view, dq, dc):
+    """The damped Gauss-Newton step of every frame's joint angles and the shared camera, the frames
+    eliminated by a Schur complement (``_sequence_lm``'s damping: lam times each diagonal entry, a frame's
+    plus a millionth of its mean; held directions pinned), into dq (F, nv) and dc (nc,), signed as
+    :func:`_integrate` and the views' ``moved`` take them: q <- q - dq, camera <- camera + dc."""
+    F, nv = gq.shape
+    nc = len(gc)
+    schur, rhs = Hcc.copy(), gc.copy()
+    for c in range(nc):
+        schur[c, c] += lam * (Hcc[c, c] + 1e-12) + (0.0 if free_view[c] else 1.0)
+    K, L = np.empty((F, nv, nc + 1)), np.empty((nv, nv))
+    for r in range(F):
+        mean = 0.0
+        for a in range(nv):
+            mean += Hqq[r, a, a]
+        floor = 1e-6 * mean / nv + 1e-30
+        for a in range(nv):  # the frame's damped block, positive definite: Cholesky, once for all columns
+            for b in range(a + 1):
+                s = Hqq[r, a, b]
+                if a == b:
+                    s += lam * (Hqq[r, a, a] + floor) + (0.0 if free[r, a] else 1.0)
+                for m in range(b):
+                    s -= L[a, m] * L[b, m]
+                L[a, b] = np.sqrt(s) if a == b else s / L[b, b]
+        for col in range(nc + 1):  # Hq^-1 [Hqc | gq], column by column
+            for a in range(nv):
+                s = Hqc[r, a, col] if col < nc else gq[r, a]
+                for m in range(a):
+                    s -= L[a, m] * K[r, m, col]
+                K[r, a, col] = s / L[a, a]
+            for a in range(nv - 1, -1, -1):
+                s = K[r, a, col]
+                for m in range(a + 1, nv):
+                    s -= L[m, a] * K[r, m, col]
+                K[r, a, col] = s / L[a, a]
+        for c in range(nc):
+            for d in range(nc):
+                s = 0.0
+                for a in range(nv):
+                    s += Hqc[r, a, c] * K[r, a, d]
+                schur[c, d] -= s
+            s = 0.0
+            for a in range(nv):
+                s += K[r, a, c] * gq[r, a]
+            rhs[c] -= s
+    _solve(schur, rhs, dc)
+    for c in range(nc):
+        dc[c] = -dc[c] if free_view[c] else 0.0
+    for r in range(F):
+        for a in range(nv):
+            s = K[r, a, nc]
+            for c in range(nc):
+                s += K[r, a, c] * dc[c]
+            dq[r, a] = s if free[r, a] else 0.0
+
+
+@_njit
+def lm_shared(q, tz, w, free, free_view, delta, tol, max_iter, R, t, sf, cxy, pinhole, fit_focal, fit_centre,
+              rn_out, pos_out, model):
+    """:func:`chainspace.robot.solver._sequence_lm` with one camera shared by every frame and free to move
+    (its steps, damping and stopping rules): q (F, nq) and the camera R (3, 3), t (3,; weak: t[:D] the
+    translation), cxy (2,) in place; ``sf`` the weak camera's scale or the pinhole's focal. tz (F, J, D)
+    targets, w (F, J) weights, free (F, nv), free_view (nc,), delta < 0: squares. Writes the residual
+    norms rn_out (F, J) and points pos_out (F, J, 3); returns (sf, iterations, converged)."""
+    limited, lower, upper, q_of_v, pair = model[15], model[16], model[17], model[19], model[20]
+    F, J, D = tz.shape
+    nq, nv, nc = q.shape[1], free.shape[1], len(free_view)
+    nj = len(model[1])
+    Rp, pp, Rp_t, pp_t = np.zeros((F, nj, 3, 3)), np.zeros((F, nj, 3)), np.zeros((F, nj, 3, 3)), np.zeros((F, nj, 3))
+    for r in range(F):
+        for i in range(3):
+            Rp[r, 0, i, i] = Rp_t[r, 0, i, i] = 1.0
+    pos, res, pos_t, res_t = np.empty((F, J, 3)), np.empty((F, J, D)), np.empty((F, J, 3)), np.empty((F, J, D))
+    cost, cost_t = np.empty(F), np.empty(F)
+    Hqq, Hqc, gq = np.empty((F, nv, nv)), np.empty((F, nv, nc)), np.empty((F, nv))
+    Hcc, gc, dq, dc = np.empty((nc, nc)), np.empty(nc), np.empty((F, nv)), np.empty(nc)
+    M, T, q_t = np.zeros((3, 3)), np.zeros(3), np.empty((F, nq))
+    R_t, t_t, c_t = np.empty((3, 3)), np.empty(3), np.empty(2)
+    _view_arrays(R, t, sf, pinhole, D, M, T)
+    _evaluate_all(q, tz, w, M, T, pinhole, sf, cxy, delta, model, Rp, pp, pos, res, cost)
+    total, lam, converged, it = cost.sum(), 1e-4, False, 0
+    for it in range(1, max_iter + 1):
+        _shared_blocks(w, M, T, R, t, sf, pinhole, fit_focal, fit_centre, delta, free, free_view, model, Rp, pp, pos,
+                       res, Hqq, Hqc, gq, Hcc, gc)
+        stepped = False
+        for _ in range(12):
+            _schur_step(Hqq, Hqc, gq, Hcc, gc, lam, free, free_view, dq, dc)
+            for r in range(F):
+                _integrate(q[r], dq[r], free[r], q_of_v, pair, limited, lower, upper, q_t[r])
+            _rotation_step(dc[:3], R, R_t)
+            t_t[:], c_t[:], sf_t = t, cxy, sf
+            if pinhole:
+                for i in range(3):
+                    t_t[i] += dc[3 + i]
+                n = 6
+                if fit_focal:
+                    sf_t = sf * np.exp(dc[6])
+                    n = 7
+                if fit_centre:
+                    c_t[0] += dc[n]
+                    c_t[1] += dc[n + 1]
+            else:
+                sf_t = sf + dc[3]
+                for i in range(D):
+                    t_t[i] += dc[4 + i]
+            _view_arrays(R_t, t_t, sf_t, pinhole, D, M, T)
+            _evaluate_all(q_t, tz, w, M, T, pinhole, sf_t, c_t, delta, model, Rp_t, pp_t, pos_t, res_t, cost_t)
+            if cost_t.sum() <= total:
+                stepped = True
+                break
+            lam *= 10
+        if not stepped:  # no step lowers the cost any more: a minimum to machine precision
+            converged = True
+            _view_arrays(R, t, sf, pinhole, D, M, T)
+            break
+        rel = (total - cost_t.sum()) / max(total, 1e-300)
+        q[:] = q_t
+        R[:] = R_t
+        t[:] = t_t
+        cxy[:] = c_t
+        sf = sf_t
+        Rp, Rp_t, pp, pp_t = Rp_t, Rp, pp_t, pp  # the trial's placements, points and costs are now the fit's
+        pos, pos_t, res, res_t, cost, cost_t = pos_t, pos, res_t, res, cost_t, cost
+        total = cost.sum()
+        lam = max(lam / 5, 1e-12)
+        if rel < tol or (cost < 1e-24).all():
+            converged = True
+            break
+    for r in range(F):
+        for k in range(J):
+            n2 = 0.0
+            for i in range(D):
+                n2 += res[r, k, i] * res[r, k, i]
+            rn_out[r, k] = np.sqrt(n2)
+            pos_out[r, k] = pos[r, k]
+    return sf, it, converged
+
+
 def threads() -> int:
     """Threads that :func:`run_rows` shares its rows among: ``CHAINSPACE_THREADS`` if set, else the cores
     this process may use (at most 8)."""
@@ -410,7 +688,7 @@ def _compiles() -> bool:
 def compile_now() -> None:
     """Compile the solver now, or load it from numba's cache: a benchmark that times fits then times the
     fits, not the one compilation after an install (some seconds). Runs one row of a one-joint arm, with
-    the argument types of every fit's calls."""
+    the argument types of every fit's calls, through each compiled solver."""
     if numba is None:
         return
     i64 = np.int64
@@ -423,3 +701,6 @@ def compile_now() -> None:
             1.0, np.zeros(2), np.ones((1, 1), bool), -1.0, 1e-8, 1, 1, np.full(1, 1e-4), np.ones(1, bool),
             np.zeros(1, i64), np.zeros((1, 1)), np.zeros((1, 1, 3)),
             (np.zeros((1, 1, 1)), np.zeros((1, 1)), np.zeros(1), np.zeros(1, bool)), False, model)
+    lm_shared(np.zeros((1, 1)), np.zeros((1, 1, 2)), np.ones((1, 1)), np.ones((1, 1), bool), np.ones(6, bool), -1.0,
+              1e-8, 1, np.eye(3), np.zeros(3), 1.0, np.zeros(2), False, False, False, np.zeros((1, 1)),
+              np.zeros((1, 1, 3)), model)

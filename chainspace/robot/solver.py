@@ -4,9 +4,11 @@ a robust (Huber) loss, and the acceleration prior of the smoothed fit.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
-from .compiled import CompiledModel, run_rows
+from .compiled import CompiledModel, lm_shared, run_rows
 from .kinematics import RobotKinematics
 from .views import _PinholeView, _View
 
@@ -230,9 +232,11 @@ def _sequence_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: n
         problem = _row_groups(key[:, q.shape[1]:], ordered=False)[1]
     else:
         problem = None
-    model = CompiledModel.of(robot) if not free_view.any() and type(view) in (_View, _PinholeView) else None
-    if model is not None:
+    model = CompiledModel.of(robot) if type(view) in (_View, _PinholeView) else None
+    if model is not None and not free_view.any():
         return _independent_rows(model, q, tz, w, view, free, max_iter, tol, delta, problem)
+    if model is not None and len(view.S) == 1 and not view.per_frame:
+        return _shared_view_rows(model, q, tz, w, view, free, free_view, max_iter, tol, delta)
     follow = np.arange(F)  # a row that met another row of the same problem follows it from there on
     eye_q, eye_c = np.eye(nv), np.eye(nc)
     fixed_q, fixed_c = (~free).astype(float), (~free_view).astype(float)
@@ -381,6 +385,30 @@ def _independent_rows(model: CompiledModel, q: np.ndarray, tz: np.ndarray, w: np
     while not np.array_equal(follow[follow], follow):
         follow = follow[follow]
     return q[follow], view, rn[follow], pos[follow], (~active)[follow], it
+
+
+def _shared_view_rows(model: CompiledModel, q: np.ndarray, tz: np.ndarray, w: np.ndarray, view: _View,
+                      free: np.ndarray, free_view: np.ndarray, max_iter: int, tol: float, delta: float | None):
+    """:func:`_sequence_lm` with one view shared by every frame and free to move, in compiled code
+    (:func:`chainspace.robot.compiled.lm_shared`: the same steps). Same returns."""
+    F, J, D = tz.shape
+    q = np.array(q, dtype=float, order="C")
+    pinhole = isinstance(view, _PinholeView)
+    R, t, c = np.array(view.R[0], dtype=float), np.zeros(3), np.zeros(2)
+    if pinhole:
+        t[:], c[:], sf, fit_focal, fit_centre = view.t[0], view.c, float(view.f), view.fit_focal, view.fit_centre
+    else:
+        t[:D], sf, fit_focal, fit_centre = view.T[0], float(view.S[0]), False, False
+    rn, pos = np.empty((F, J)), np.empty((F, J, 3))
+    tz, w, free = (np.ascontiguousarray(a, dtype=k) for a, k in ((tz, float), (w, float), (free, bool)))
+    sf, it, converged = lm_shared(q, tz, w, free, np.asarray(free_view, bool), -1.0 if delta is None else float(delta),
+                                  float(tol), int(max_iter), R, t, sf, c, pinhole, bool(fit_focal), bool(fit_centre),
+                                  rn, pos, model.args())
+    if pinhole:
+        view = replace(view, R=R[None], t=t[None], f=float(sf), c=c)
+    else:
+        view = _View(np.array([sf]), R[None], t[None, :D], view.cam_of)
+    return q, view, rn, pos, np.full(F, converged), int(it)
 
 
 def _rms_per_frame(rn: np.ndarray, w: np.ndarray) -> np.ndarray:
