@@ -360,7 +360,7 @@ def _independent_rows(model: CompiledModel, q: np.ndarray, tz: np.ndarray, w: np
     pinhole = isinstance(view, _PinholeView)
     if pinhole:
         M, T = (np.ascontiguousarray(np.broadcast_to(a[0], (F,) + a.shape[1:])) for a in (view.R, view.t))
-        f, cxy = float(view.f), np.asarray(view.c, float)
+        f, cxy = float(view.f), np.ascontiguousarray(view.c, dtype=float)  # one compiled signature (c may be a view)
     else:
         M, T = np.ascontiguousarray(view.matrices()), np.ascontiguousarray(view.T[view.cam_of])
         f, cxy = 1.0, np.zeros(2)
