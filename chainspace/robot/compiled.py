@@ -378,14 +378,13 @@ def lm_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, l
 
 
 @_njit
-def _camera_rows(k, pos, R, t, sf, pinhole, fit_focal, fit_centre, free_view, Jc):
+def _camera_rows(k, pos, R, t, sf, pinhole, fit_focal, fit_centre, free_view, Jc, v):
     """Point k's rows of the Jacobian of its prediction by the shared camera's step, Jc (D, nc), in place
     (held parameters' columns zero). Weak (``sf`` the scale s; s (R x)[:D] + t[:D]): rotation vector,
     scale, translation; pinhole (``sf`` the focal f; f (y_x, y_y) / y_z + c at y = R x + t): rotation
     vector, translation, then log f and the principal point where fitted: the steps of ``_View.moved``
-    and ``_PinholeView.moved``, whose rotation turns R x by w x (R x)."""
+    and ``_PinholeView.moved``, whose rotation turns R x by w x (R x). v (3,): scratch, left R x."""
     D = Jc.shape[0]
-    v = np.empty(3)  # R x
     for i in range(3):
         v[i] = R[i, 0] * pos[k, 0] + R[i, 1] * pos[k, 1] + R[i, 2] * pos[k, 2]
     Jc[:] = 0.0
@@ -455,60 +454,59 @@ def _shared_blocks(w, M, T, R, t, sf, pinhole, fit_focal, fit_centre, delta, fre
     Hqq (F, nv, nv), Hqc (F, nv, nc), gq (F, nv); the camera's Hcc (nc, nc), gc (nc,) summed over frames."""
     F, J, D = res.shape
     nv, nc = free.shape[1], len(free_view)
-    Jq, Jc, Mk, Wa = np.empty((D, nv)), np.empty((D, nc)), np.empty((D, 3)), np.zeros((Rp.shape[1], 3))
-    Hqq[:] = 0.0
-    Hqc[:] = 0.0
-    gq[:] = 0.0
+    Jq, Jc, Mk, Wa, v = np.empty((D, nv)), np.empty((D, nc)), np.empty((D, 3)), np.zeros((Rp.shape[1], 3)), np.empty(3)
+    H, B, g = np.empty((nv, nv)), np.empty((nv, nc)), np.empty(nv)  # one frame's blocks
     Hcc[:] = 0.0
     gc[:] = 0.0
     for r in range(F):
+        wr, fr, pr, xr, er = w[r], free[r], pp[r], pos[r], res[r]
+        H[:] = 0.0
+        B[:] = 0.0
+        g[:] = 0.0
         _joint_axes(Rp[r], model[0], model[10], model[5], Wa)
         for k in range(J):
-            if w[r, k] == 0.0:
+            if wr[k] == 0.0:
                 continue
-            ww = _point_rows(k, w[r], M, T, pinhole, sf, delta, free[r], model, pp[r], pos[r], res[r], Wa, Mk, Jq)
-            _camera_rows(k, pos[r], R, t, sf, pinhole, fit_focal, fit_centre, free_view, Jc)
-            for a in range(nv):
-                for i in range(D):
-                    gq[r, a] += ww * Jq[i, a] * res[r, k, i]
-                for b in range(a, nv):
-                    s = 0.0
-                    for i in range(D):
-                        s += Jq[i, a] * Jq[i, b]
-                    Hqq[r, a, b] += ww * s
+            ww = _point_rows(k, wr, M, T, pinhole, sf, delta, fr, model, pr, xr, er, Wa, Mk, Jq)
+            _camera_rows(k, xr, R, t, sf, pinhole, fit_focal, fit_centre, free_view, Jc, v)
+            for i in range(D):
+                e = ww * er[k, i]
+                for a in range(nv):
+                    wa = ww * Jq[i, a]
+                    g[a] += Jq[i, a] * e
+                    for b in range(a, nv):
+                        H[a, b] += wa * Jq[i, b]
+                    for c in range(nc):
+                        B[a, c] += wa * Jc[i, c]
                 for c in range(nc):
-                    s = 0.0
-                    for i in range(D):
-                        s += Jq[i, a] * Jc[i, c]
-                    Hqc[r, a, c] += ww * s
-            for c in range(nc):
-                for i in range(D):
-                    gc[c] += ww * Jc[i, c] * res[r, k, i]
-                for d in range(c, nc):
-                    s = 0.0
-                    for i in range(D):
-                        s += Jc[i, c] * Jc[i, d]
-                    Hcc[c, d] += ww * s
+                    wc = ww * Jc[i, c]
+                    gc[c] += Jc[i, c] * e
+                    for d in range(c, nc):
+                        Hcc[c, d] += wc * Jc[i, d]
         for a in range(nv):
-            for b in range(a):
-                Hqq[r, a, b] = Hqq[r, b, a]
+            gq[r, a] = g[a]
+            for b in range(nv):
+                Hqq[r, a, b] = H[a, b] if b >= a else H[b, a]
+            for c in range(nc):
+                Hqc[r, a, c] = B[a, c]
     for c in range(nc):
         for d in range(c):
             Hcc[c, d] = Hcc[d, c]
 
 
 @_njit
-def _schur_step(Hqq, Hqc, gq, Hcc, gc, lam, free, free_view, dq, dc):
+def _schur_step(Hqq, Hqc, gq, Hcc, gc, lam, free, free_view, dq, dc, K):
     """The damped Gauss-Newton step of every frame's joint angles and the shared camera, the frames
     eliminated by a Schur complement (``_sequence_lm``'s damping: lam times each diagonal entry, a frame's
     plus a millionth of its mean; held directions pinned), into dq (F, nv) and dc (nc,), signed as
-    :func:`_integrate` and the views' ``moved`` take them: q <- q - dq, camera <- camera + dc."""
+    :func:`_integrate` and the views' ``moved`` take them: q <- q - dq, camera <- camera + dc. K (F, nv,
+    nc + 1): scratch, left each frame's damped block's inverse times [Hqc | gq]."""
     F, nv = gq.shape
     nc = len(gc)
     schur, rhs = Hcc.copy(), gc.copy()
     for c in range(nc):
         schur[c, c] += lam * (Hcc[c, c] + 1e-12) + (0.0 if free_view[c] else 1.0)
-    K, L = np.empty((F, nv, nc + 1)), np.empty((nv, nv))
+    L = np.empty((nv, nv))
     for r in range(F):
         mean = 0.0
         for a in range(nv):
@@ -573,7 +571,7 @@ def lm_shared(q, tz, w, free, free_view, delta, tol, max_iter, R, t, sf, cxy, pi
     pos, res, pos_t, res_t = np.empty((F, J, 3)), np.empty((F, J, D)), np.empty((F, J, 3)), np.empty((F, J, D))
     cost, cost_t = np.empty(F), np.empty(F)
     Hqq, Hqc, gq = np.empty((F, nv, nv)), np.empty((F, nv, nc)), np.empty((F, nv))
-    Hcc, gc, dq, dc = np.empty((nc, nc)), np.empty(nc), np.empty((F, nv)), np.empty(nc)
+    Hcc, gc, dq, dc, K = np.empty((nc, nc)), np.empty(nc), np.empty((F, nv)), np.empty(nc), np.empty((F, nv, nc + 1))
     M, T, q_t = np.zeros((3, 3)), np.zeros(3), np.empty((F, nq))
     R_t, t_t, c_t = np.empty((3, 3)), np.empty(3), np.empty(2)
     _view_arrays(R, t, sf, pinhole, D, M, T)
@@ -584,7 +582,7 @@ def lm_shared(q, tz, w, free, free_view, delta, tol, max_iter, R, t, sf, cxy, pi
                        res, Hqq, Hqc, gq, Hcc, gc)
         stepped = False
         for _ in range(12):
-            _schur_step(Hqq, Hqc, gq, Hcc, gc, lam, free, free_view, dq, dc)
+            _schur_step(Hqq, Hqc, gq, Hcc, gc, lam, free, free_view, dq, dc, K)
             for r in range(F):
                 _integrate(q[r], dq[r], free[r], q_of_v, pair, limited, lower, upper, q_t[r])
             _rotation_step(dc[:3], R, R_t)
