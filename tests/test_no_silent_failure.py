@@ -447,7 +447,7 @@ def test_a_joint_half_a_turn_away_with_the_camera_turned_is_searched_for(example
 def test_a_nearly_symmetric_arm_through_a_pinhole_camera_is_not_left_on_its_mirror_image(example_urdf):
     """The Kinova Gen2 (links 5 mm off its plane of symmetry) from above through a pinhole camera, full ranges,
     seed 31: the fit was the true motion's near mirror image, joints 2 and 3 47 and 21 degrees off and
-    reported observable, about 50 noise variances above the true motion's basin. The winner's near mirror
+    reported observable, about 150 noise variances above the true motion's basin. The winner's near mirror
     image, given a camera of its own, leads there (perspective.NEAR_MIRROR, refine_perspective's
     mirror_start)."""
     example_urdf("kinova")

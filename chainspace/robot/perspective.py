@@ -69,8 +69,8 @@ EXACT_TWIN_SIGMA = 1e-3
 # the winner's mirror image is tried as a start where the robot can take it to within this fraction of its
 # reach at every point: a nearly symmetric arm's is a start as good as an exact one's. The Kinova Gen2
 # (its links 5 mm off the plane of symmetry: 0.4 % of its reach) from above, full ranges, seed 31: the
-# fit was the true motion's near mirror image, joints 2 and 3 47 and 21 degrees off, reported observable,
-# 109 px^2 (about 50 noise variances) above the true motion's basin, which the near mirror leads to
+# fit was the true motion's near mirror image, joints 2 and 3 47 and 21 degrees off, reported observable;
+# the true motion's basin, which the near mirror leads to, lies about 150 noise variances lower
 NEAR_MIRROR = 0.01
 
 
