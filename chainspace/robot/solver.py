@@ -401,9 +401,9 @@ def _shared_view_rows(model: CompiledModel, q: np.ndarray, tz: np.ndarray, w: np
         t[:D], sf, fit_focal, fit_centre = view.T[0], float(view.S[0]), False, False
     rn, pos = np.empty((F, J)), np.empty((F, J, 3))
     tz, w, free = (np.ascontiguousarray(a, dtype=k) for a, k in ((tz, float), (w, float), (free, bool)))
-    sf, it, converged = lm_shared(q, tz, w, free, np.asarray(free_view, bool), -1.0 if delta is None else float(delta),
-                                  float(tol), int(max_iter), R, t, sf, c, pinhole, bool(fit_focal), bool(fit_centre),
-                                  rn, pos, model.args())
+    sf, it, converged = lm_shared(q, tz, w, free, np.ascontiguousarray(free_view, dtype=bool),
+                                  -1.0 if delta is None else float(delta), float(tol), int(max_iter), R, t, sf, c,
+                                  pinhole, bool(fit_focal), bool(fit_centre), rn, pos, model.args())
     if pinhole:
         view = replace(view, R=R[None], t=t[None], f=float(sf), c=c)
     else:
