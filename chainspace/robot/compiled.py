@@ -597,6 +597,26 @@ def _schur_step(Hqq, Hqc, gq, Hcc, gc, lam, free, free_view, dq, dc, K):
             dq[r, a] = s if free[r, a] else 0.0
 
 
+@_njit_inline
+def _moved_camera(dc, R, t, sf, cxy, pinhole, fit_focal, fit_centre, D, R_t, t_t, c_t):
+    """The camera after the step dc, as ``_View.moved`` / ``_PinholeView.moved`` make it: R_t, t_t, c_t in
+    place; returns its scale (weak) or focal (pinhole)."""
+    _rotation_step(dc[:3], R, R_t)
+    t_t[:] = t
+    c_t[:] = cxy
+    if not pinhole:
+        for i in range(D):
+            t_t[i] += dc[4 + i]
+        return sf + dc[3]
+    for i in range(3):
+        t_t[i] += dc[3 + i]
+    n = 7 if fit_focal else 6
+    if fit_centre:
+        c_t[0] += dc[n]
+        c_t[1] += dc[n + 1]
+    return sf * np.exp(dc[6]) if fit_focal else sf
+
+
 @_njit
 def lm_shared(q, tz, w, free, free_view, delta, tol, max_iter, R, t, sf, cxy, pinhole, fit_focal, fit_centre,
               rn_out, pos_out, model):
@@ -630,22 +650,7 @@ def lm_shared(q, tz, w, free, free_view, delta, tol, max_iter, R, t, sf, cxy, pi
             _schur_step(Hqq, Hqc, gq, Hcc, gc, lam, free, free_view, dq, dc, K)
             for r in range(F):
                 _integrate(q[r], dq[r], free[r], q_of_v, pair, limited, lower, upper, q_t[r])
-            _rotation_step(dc[:3], R, R_t)
-            t_t[:], c_t[:], sf_t = t, cxy, sf
-            if pinhole:
-                for i in range(3):
-                    t_t[i] += dc[3 + i]
-                n = 6
-                if fit_focal:
-                    sf_t = sf * np.exp(dc[6])
-                    n = 7
-                if fit_centre:
-                    c_t[0] += dc[n]
-                    c_t[1] += dc[n + 1]
-            else:
-                sf_t = sf + dc[3]
-                for i in range(D):
-                    t_t[i] += dc[4 + i]
+            sf_t = _moved_camera(dc, R, t, sf, cxy, pinhole, fit_focal, fit_centre, D, R_t, t_t, c_t)
             _view_arrays(R_t, t_t, sf_t, pinhole, D, M, T)
             _evaluate_all(q_t, tz, w, M, T, pinhole, sf_t, c_t, delta, model, Rp_t, pp_t, pos_t, res_t, cost_t)
             if cost_t.sum() <= total:
