@@ -641,7 +641,7 @@ def lm_shared(q, tz, w, free, free_view, delta, tol, max_iter, R, t, sf, cxy, pi
     R_t, t_t, c_t = np.empty((3, 3)), np.empty(3), np.empty(2)
     _view_arrays(R, t, sf, pinhole, D, M, T)
     _evaluate_all(q, tz, w, M, T, pinhole, sf, cxy, delta, model, Rp, pp, pos, res, cost)
-    total, lam, converged, it = cost.sum(), 1e-4, False, 0
+    total, total_t, lam, converged, it = cost.sum(), 0.0, 1e-4, False, 0
     for it in range(1, max_iter + 1):
         _shared_blocks(w, M, T, R, t, sf, pinhole, fit_focal, fit_centre, delta, free, free_view, model, Rp, pp, pos,
                        res, Hqq, Hqc, gq, Hcc, gc)
@@ -653,15 +653,15 @@ def lm_shared(q, tz, w, free, free_view, delta, tol, max_iter, R, t, sf, cxy, pi
             sf_t = _moved_camera(dc, R, t, sf, cxy, pinhole, fit_focal, fit_centre, D, R_t, t_t, c_t)
             _view_arrays(R_t, t_t, sf_t, pinhole, D, M, T)
             _evaluate_all(q_t, tz, w, M, T, pinhole, sf_t, c_t, delta, model, Rp_t, pp_t, pos_t, res_t, cost_t)
-            if cost_t.sum() <= total:
+            total_t = cost_t.sum()
+            if total_t <= total:
                 stepped = True
                 break
             lam *= 10
         if not stepped:  # no step lowers the cost any more: a minimum to machine precision
             converged = True
-            _view_arrays(R, t, sf, pinhole, D, M, T)
             break
-        rel = (total - cost_t.sum()) / max(total, 1e-300)
+        rel = (total - total_t) / max(total, 1e-300)
         q[:] = q_t
         R[:] = R_t
         t[:] = t_t
@@ -669,7 +669,7 @@ def lm_shared(q, tz, w, free, free_view, delta, tol, max_iter, R, t, sf, cxy, pi
         sf = sf_t
         Rp, Rp_t, pp, pp_t = Rp_t, Rp, pp_t, pp  # the trial's placements, points and costs are now the fit's
         pos, pos_t, res, res_t, cost, cost_t = pos_t, pos, res_t, res, cost_t, cost
-        total = cost.sum()
+        total = total_t
         lam = max(lam / 5, 1e-12)
         if rel < tol or (cost < 1e-24).all():
             converged = True

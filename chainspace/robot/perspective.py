@@ -474,13 +474,14 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     lead = fits[0]
     mirror = _pinhole_twin(robot, lead["q"], lead["view"], lead["free"], NEAR_MIRROR)
     var0 = _noise_variance(lead, w)
-    for i, (q_tw, v_tw) in enumerate(([] if mirror is None else [mirror]) + _turned_twins(robot, lead["q"],
-                                                                                          lead["view"])):
+    twins = [(tw, tw is mirror) for tw in ([] if mirror is None else [mirror]) +
+             _turned_twins(robot, lead["q"], lead["view"])]
+    for (q_tw, v_tw), is_mirror in twins:
         if any(_same_motion(robot, q_tw, r["q"]) for r in fits):
             continue
         plain = _sequence_lm(robot, q_tw, tr, w, v_tw, lead["free"], np.ones(v_tw.n_params, bool), max_iter, tol,
                              lead["delta"])
-        if i == 0 and mirror is not None and not tied(plain, lead, var0):
+        if is_mirror and not tied(plain, lead, var0):
             plain = min(plain, mirror_start(q_tw, lead), key=lambda o: _robust(o[2], w, lead["delta"]))
         if tied(plain, lead, var0):
             fits += finish(plain[0], plain[1], lead["start"], plain[5])

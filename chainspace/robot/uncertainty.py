@@ -667,8 +667,8 @@ def _sampled_prior(prior, F: int, nv: int, step: int, n: int):
 def _shake_fits(robot: RobotKinematics, q: np.ndarray, view, problem: "_Samples", shake: np.ndarray) -> list[tuple]:
     """Per joint in ``shake`` and shift (:data:`SHAKE_DEG`, :data:`SHAKE_FAR_DEG`, either way, and a
     turning joint by :data:`SHAKE_TURN_DEG`): q (F, nq) with that joint's path shifted, the camera
-    re-fitted to it, then everything fitted again on ``problem``'s frames (:meth:`_Samples.fit`; q and view are for those frames). Returns the fits,
-    (q, view, rn, ...) as the solvers do."""
+    re-fitted to it, then everything fitted again on ``problem``'s frames (:meth:`_Samples.fit`; q and
+    view are for those frames). Returns the fits, (q, view, rn, ...) as the solvers do."""
     from .solver import _sequence_lm
     from .views import _camera_view, _View
 
