@@ -1,6 +1,7 @@
 """The solver's most frequent problems compiled (numba): Levenberg-Marquardt on many independent rows, each
 one configuration's joint angles against its own target under a held view (:func:`lm_rows`); and on a
-sequence's joint angles together with the one camera that every frame shares (:func:`lm_shared`).
+sequence's joint angles together with the one camera that every frame shares (:func:`lm_shared`), also
+under the motion prior that ties each joint to its path through neighbouring frames (``_smooth_lm``).
 
 Why: the branch search, the depth flips and the sequential IK solve thousands of small problems (one per
 frame and start) a few dozen times per fit; in numpy each step of all of them took some forty array
@@ -8,7 +9,9 @@ operations of a few floats per row, about 5 microseconds a row and step, most of
 Here each row runs its own loop over the joints, its kinematics and its small normal equations in compiled
 code (about 1 microsecond a row and step for a 6-axis arm), and the rows are shared among threads. The
 fits that move the camera too (the perspective fit's, the 3D fit's alignment) took another 40 % of a
-pinhole fit in numpy, some 19 microseconds a frame and iteration; compiled, about 6.
+pinhole fit in numpy, some 19 microseconds a frame and iteration; compiled, about 6. With the motion prior
+(the choice among candidates, the perspective fit's smoothing) the joint angles' block is banded rather
+than block-diagonal, and is factored by a banded Cholesky (:func:`_banded_step`).
 
 The steps are those of :func:`chainspace.robot.solver._sequence_lm` (same damping, same stopping rules, the
 same iterations at which starts that met are merged; the camera's part of a shared step by the same Schur
@@ -597,6 +600,106 @@ def _schur_step(Hqq, Hqc, gq, Hcc, gc, lam, free, free_view, dq, dc, K):
             dq[r, a] = s if free[r, a] else 0.0
 
 
+@_njit
+def _prior_terms(prior, q, free, gq):
+    """The motion prior q' P q of :func:`chainspace.robot.solver._smooth_lm` (P in ``prior`` (F, 3, nv):
+    P[f, s, a] couples joint a at frame f to itself at frame f + s, the only entries
+    :func:`chainspace.robot.solver._motion_prior` makes); with gq (F, nv) given, its gradient half P q is
+    added there and the held directions' gradient zeroed. Returns q' P q."""
+    F, nv = q.shape
+    quad = 0.0
+    for r in range(F):
+        for a in range(nv):
+            pq = prior[r, 0, a] * q[r, a]
+            for s in (1, 2):
+                if r + s < F:
+                    pq += 2.0 * prior[r, s, a] * q[r + s, a]
+            quad += q[r, a] * pq
+            if gq.shape[0]:
+                g = prior[r, 0, a] * q[r, a]
+                for s in (1, 2):
+                    if r + s < F:
+                        g += prior[r, s, a] * q[r + s, a]
+                    if r >= s:
+                        g += prior[r - s, s, a] * q[r - s, a]
+                gq[r, a] = gq[r, a] + g if free[r, a] else 0.0
+    return quad
+
+
+@_njit
+def _banded_step(Hqq, Hqc, gq, Hcc, gc, prior, lam, free, free_view, dq, dc, A, sol):
+    """:func:`_schur_step` with the motion prior: the joint angles' block is every frame's Hqq plus the
+    prior (``prior`` as :func:`_prior_terms` takes it), banded (a joint couples to itself two frames on),
+    factored by a banded Cholesky in A (F nv, 2 nv + 1): A[i, k] holds entry (i, i - k). The damping is
+    ``_smooth_lm``'s: lam times each diagonal entry plus a billionth of their mean, held joint directions
+    pinned by 1e12, held camera directions by 1. sol (F nv, nc + 1): scratch, the band's inverse times
+    [Hqc | gq]. Same signs as :func:`_schur_step`."""
+    F, nv = gq.shape
+    nc = len(gc)
+    N, u = F * nv, 2 * nv
+    mean = 0.0
+    for r in range(F):
+        for a in range(nv):
+            mean += Hqq[r, a, a] + prior[r, 0, a]
+    floor = 1e-9 * mean / N
+    A[:] = 0.0
+    for r in range(F):
+        for a in range(nv):
+            i = r * nv + a
+            for b in range(a):
+                A[i, a - b] = Hqq[r, a, b]
+            d = Hqq[r, a, a] + prior[r, 0, a]
+            A[i, 0] = d + lam * (d + floor) + (0.0 if free[r, a] else 1e12)
+            for s in (1, 2):
+                if r >= s:
+                    A[i, s * nv] = prior[r - s, s, a]
+            for c in range(nc):
+                sol[i, c] = Hqc[r, a, c]
+            sol[i, nc] = gq[r, a]
+    for j in range(N):  # Cholesky, in place: A's band becomes L's
+        s = A[j, 0]
+        for k in range(1, min(j, u) + 1):
+            s -= A[j, k] * A[j, k]
+        ljj = np.sqrt(s)
+        A[j, 0] = ljj
+        for i in range(j + 1, min(N, j + u + 1)):
+            s = A[i, i - j]
+            for m in range(max(i - u, 0), j):
+                s -= A[i, i - m] * A[j, j - m]
+            A[i, i - j] = s / ljj
+    for col in range(nc + 1):  # L^-T L^-1 [Hqc | gq], column by column
+        for i in range(N):
+            s = sol[i, col]
+            for m in range(max(i - u, 0), i):
+                s -= A[i, i - m] * sol[m, col]
+            sol[i, col] = s / A[i, 0]
+        for i in range(N - 1, -1, -1):
+            s = sol[i, col]
+            for m in range(i + 1, min(N, i + u + 1)):
+                s -= A[m, m - i] * sol[m, col]
+            sol[i, col] = s / A[i, 0]
+    schur, rhs = Hcc.copy(), gc.copy()
+    for c in range(nc):
+        schur[c, c] += lam * (Hcc[c, c] + 1e-12) + (0.0 if free_view[c] else 1.0)
+    for r in range(F):
+        for a in range(nv):
+            i = r * nv + a
+            for c in range(nc):
+                for d in range(nc):
+                    schur[c, d] -= Hqc[r, a, c] * sol[i, d]
+                rhs[c] -= Hqc[r, a, c] * sol[i, nc]
+    _solve(schur, rhs, dc)
+    for c in range(nc):
+        dc[c] = -dc[c] if free_view[c] else 0.0
+    for r in range(F):
+        for a in range(nv):
+            i = r * nv + a
+            s = sol[i, nc]
+            for c in range(nc):
+                s += sol[i, c] * dc[c]
+            dq[r, a] = s if free[r, a] else 0.0
+
+
 @_njit_inline
 def _moved_camera(dc, R, t, sf, cxy, pinhole, fit_focal, fit_centre, D, R_t, t_t, c_t):
     """The camera after the step dc, as ``_View.moved`` / ``_PinholeView.moved`` make it: R_t, t_t, c_t in
@@ -619,12 +722,14 @@ def _moved_camera(dc, R, t, sf, cxy, pinhole, fit_focal, fit_centre, D, R_t, t_t
 
 @_njit
 def lm_shared(q, tz, w, free, free_view, delta, tol, max_iter, R, t, sf, cxy, pinhole, fit_focal, fit_centre,
-              rn_out, pos_out, model):
+              prior, rn_out, pos_out, model):
     """:func:`chainspace.robot.solver._sequence_lm` with one camera shared by every frame and free to move
     (its steps, damping and stopping rules): q (F, nq) and the camera R (3, 3), t (3,; weak: t[:D] the
     translation), cxy (2,) in place; ``sf`` the weak camera's scale or the pinhole's focal. tz (F, J, D)
-    targets, w (F, J) weights, free (F, nv), free_view (nc,), delta < 0: squares. Writes the residual
-    norms rn_out (F, J) and points pos_out (F, J, 3); returns (sf, iterations, converged)."""
+    targets, w (F, J) weights, free (F, nv), free_view (nc,), delta < 0: squares. With a motion prior
+    (``prior`` (F, 3, nv), :func:`_prior_terms`; none: (0, 3, nv)) it is
+    :func:`chainspace.robot.solver._smooth_lm` instead (its objective, damping and banded step). Writes the
+    residual norms rn_out (F, J) and points pos_out (F, J, 3); returns (sf, iterations, converged)."""
     limited, lower, upper, q_of_v, pair = model[15], model[16], model[17], model[19], model[20]
     F, J, D = tz.shape
     nq, nv, nc = q.shape[1], free.shape[1], len(free_view)
@@ -639,21 +744,29 @@ def lm_shared(q, tz, w, free, free_view, delta, tol, max_iter, R, t, sf, cxy, pi
     Hcc, gc, dq, dc, K = np.empty((nc, nc)), np.empty(nc), np.empty((F, nv)), np.empty(nc), np.empty((F, nv, nc + 1))
     M, T, q_t = np.zeros((3, 3)), np.zeros(3), np.empty((F, nq))
     R_t, t_t, c_t = np.empty((3, 3)), np.empty(3), np.empty(2)
+    smooth = prior.shape[0] > 0
+    A, sol = np.empty((F * nv if smooth else 0, 2 * nv + 1)), np.empty((F * nv if smooth else 0, nc + 1))
     _view_arrays(R, t, sf, pinhole, D, M, T)
     _evaluate_all(q, tz, w, M, T, pinhole, sf, cxy, delta, model, Rp, pp, pos, res, cost)
-    total, total_t, lam, converged, it = cost.sum(), 0.0, 1e-4, False, 0
+    total = cost.sum() + (_prior_terms(prior, q, free, gq[:0]) if smooth else 0.0)
+    total_t, lam, converged, it = 0.0, 1e-4, False, 0
     for it in range(1, max_iter + 1):
         _shared_blocks(w, M, T, R, t, sf, pinhole, fit_focal, fit_centre, delta, free, free_view, model, Rp, pp, pos,
                        res, Hqq, Hqc, gq, Hcc, gc)
+        if smooth:
+            _prior_terms(prior, q, free, gq)
         stepped = False
         for _ in range(12):
-            _schur_step(Hqq, Hqc, gq, Hcc, gc, lam, free, free_view, dq, dc, K)
+            if smooth:
+                _banded_step(Hqq, Hqc, gq, Hcc, gc, prior, lam, free, free_view, dq, dc, A, sol)
+            else:
+                _schur_step(Hqq, Hqc, gq, Hcc, gc, lam, free, free_view, dq, dc, K)
             for r in range(F):
                 _integrate(q[r], dq[r], free[r], q_of_v, pair, limited, lower, upper, q_t[r])
             sf_t = _moved_camera(dc, R, t, sf, cxy, pinhole, fit_focal, fit_centre, D, R_t, t_t, c_t)
             _view_arrays(R_t, t_t, sf_t, pinhole, D, M, T)
             _evaluate_all(q_t, tz, w, M, T, pinhole, sf_t, c_t, delta, model, Rp_t, pp_t, pos_t, res_t, cost_t)
-            total_t = cost_t.sum()
+            total_t = cost_t.sum() + (_prior_terms(prior, q_t, free, gq[:0]) if smooth else 0.0)
             if total_t <= total:
                 stepped = True
                 break
@@ -671,7 +784,7 @@ def lm_shared(q, tz, w, free, free_view, delta, tol, max_iter, R, t, sf, cxy, pi
         pos, pos_t, res, res_t, cost, cost_t = pos_t, pos, res_t, res, cost_t, cost
         total = total_t
         lam = max(lam / 5, 1e-12)
-        if rel < tol or (cost < 1e-24).all():
+        if rel < tol or (total < 1e-24 if smooth else (cost < 1e-24).all()):
             converged = True
             break
     for r in range(F):
@@ -750,5 +863,5 @@ def compile_now() -> None:
             np.zeros(1, i64), np.zeros((1, 1)), np.zeros((1, 1, 3)),
             (np.zeros((1, 1, 1)), np.zeros((1, 1)), np.zeros(1), np.zeros(1, bool)), False, model)
     lm_shared(np.zeros((1, 1)), np.zeros((1, 1, 2)), np.ones((1, 1)), np.ones((1, 1), bool), np.ones(6, bool), -1.0,
-              1e-8, 1, np.eye(3), np.zeros(3), 1.0, np.zeros(2), False, False, False, np.zeros((1, 1)),
-              np.zeros((1, 1, 3)), model)
+              1e-8, 1, np.eye(3), np.zeros(3), 1.0, np.zeros(2), False, False, False, np.zeros((0, 3, 1)),
+              np.zeros((1, 1)), np.zeros((1, 1, 3)), model)

@@ -131,6 +131,18 @@ def _smoothed_objective(prior, q: np.ndarray, rn: np.ndarray, w: np.ndarray, del
     return float((w * _huber(rn, delta)[0]).sum()) + float(qf @ (prior @ qf))
 
 
+def _prior_band(prior, F: int, nv: int) -> np.ndarray | None:
+    """The motion prior (:func:`_motion_prior`) as the compiled solver takes it: P (F, 3, nv), P[f, s, a]
+    the entry that couples joint a at frame f to itself at frame f + s; None if it has other entries."""
+    P = np.zeros((F, 3, nv))
+    kept = 0
+    for s in range(min(3, F)):
+        d = prior.diagonal(s * nv)
+        P[:F - s, s] = d.reshape(F - s, nv)
+        kept += np.count_nonzero(d) * (2 if s else 1)  # the matrix is symmetric: the lower side counts too
+    return P if kept == np.count_nonzero(prior.data if hasattr(prior, "data") else prior) else None
+
+
 def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,
                free: np.ndarray, free_view: np.ndarray, max_iter: int, tol: float, delta: float | None,
                prior):
@@ -149,6 +161,10 @@ def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.
     N = F * nv
     u = 3 * nv - 1  # upper bandwidth: frame f couples to f + 2
     tz = np.nan_to_num(target)
+    model = CompiledModel.of(robot) if type(view) in (_View, _PinholeView) and robot.euclidean else None
+    band = _prior_band(prior, F, nv) if model is not None and len(view.S) == 1 and not view.per_frame else None
+    if band is not None:
+        return _shared_view_rows(model, q, tz, w, view, free, free_view, max_iter, tol, delta, band)
     frozen = (~free).reshape(-1)
     prior_band = np.zeros((u + 1, N))
     for d in range(u + 1):  # upper diagonals of the prior, in the banded layout
@@ -388,9 +404,11 @@ def _independent_rows(model: CompiledModel, q: np.ndarray, tz: np.ndarray, w: np
 
 
 def _shared_view_rows(model: CompiledModel, q: np.ndarray, tz: np.ndarray, w: np.ndarray, view: _View,
-                      free: np.ndarray, free_view: np.ndarray, max_iter: int, tol: float, delta: float | None):
+                      free: np.ndarray, free_view: np.ndarray, max_iter: int, tol: float, delta: float | None,
+                      prior: np.ndarray | None = None):
     """:func:`_sequence_lm` with one view shared by every frame and free to move, in compiled code
-    (:func:`chainspace.robot.compiled.lm_shared`: the same steps). Same returns."""
+    (:func:`chainspace.robot.compiled.lm_shared`: the same steps); with ``prior`` (:func:`_prior_band`)
+    :func:`_smooth_lm`'s. Same returns."""
     F, J, D = tz.shape
     q = np.array(q, dtype=float, order="C")
     pinhole = isinstance(view, _PinholeView)
@@ -403,7 +421,8 @@ def _shared_view_rows(model: CompiledModel, q: np.ndarray, tz: np.ndarray, w: np
     tz, w, free = (np.ascontiguousarray(a, dtype=k) for a, k in ((tz, float), (w, float), (free, bool)))
     sf, it, converged = lm_shared(q, tz, w, free, np.ascontiguousarray(free_view, dtype=bool),
                                   -1.0 if delta is None else float(delta), float(tol), int(max_iter), R, t, sf, c,
-                                  pinhole, bool(fit_focal), bool(fit_centre), rn, pos, model.args())
+                                  pinhole, bool(fit_focal), bool(fit_centre),
+                                  np.zeros((0, 3, free.shape[1])) if prior is None else prior, rn, pos, model.args())
     if pinhole:
         view = replace(view, R=R[None], t=t[None], f=float(sf), c=c)
     else:
