@@ -797,6 +797,60 @@ def lm_shared(q, tz, w, free, free_view, delta, tol, max_iter, R, t, sf, cxy, pi
     return sf, it, converged
 
 
+@_njit
+def row_hashes(u, out):
+    """A 64-bit multiplicative hash of each row of u (N, M) uint64 (a float array's bytes), into out (N,):
+    :func:`chainspace.robot.solver._row_groups`' hash, column after column with wrapping arithmetic."""
+    mult, shift = np.uint64(0x9E3779B97F4A7C15), np.uint64(29)
+    for i in range(u.shape[0]):
+        h = np.uint64(0)
+        for j in range(u.shape[1]):
+            h ^= u[i, j]
+            h *= mult
+            h ^= h >> shift
+        out[i] = h
+
+
+@_njit
+def rows_match(k, lead):
+    """Whether every row i of k (N, M) equals row lead[i] (as numbers: NaN equals nothing)."""
+    for i in range(k.shape[0]):
+        for j in range(k.shape[1]):
+            if k[i, j] != k[lead[i], j]:
+                return False
+    return True
+
+
+@_njit
+def lex_order(k):
+    """The order of the distinct rows of k (N, M) without NaN, lexicographic (column 0 first): what
+    ``np.lexsort(k.T[::-1])`` gives them, by a merge sort that compares a row only as far as it must."""
+    n = k.shape[0]
+    order, spare = np.arange(n), np.empty(n, np.int64)
+    width = 1
+    while width < n:
+        for lo in range(0, n, 2 * width):
+            mid, hi = min(lo + width, n), min(lo + 2 * width, n)
+            a, b = lo, mid
+            for o in range(lo, hi):
+                take_a = b >= hi
+                if a < mid and not take_a:
+                    i, j = order[a], order[b]
+                    c = 0
+                    while c < k.shape[1] - 1 and k[i, c] == k[j, c]:
+                        c += 1
+                    take_a = k[i, c] <= k[j, c]
+                if a < mid and take_a:
+                    spare[o] = order[a]
+                    a += 1
+                else:
+                    spare[o] = order[b]
+                    b += 1
+        order, spare = spare, order
+        width *= 2
+    return order
+
+
 def threads() -> int:
     """Threads that :func:`run_rows` shares its rows among: ``CHAINSPACE_THREADS`` if set, else the cores
     this process may use (at most 8)."""
@@ -862,6 +916,10 @@ def compile_now() -> None:
             1.0, np.zeros(2), np.ones((1, 1), bool), -1.0, 1e-8, 1, 1, np.full(1, 1e-4), np.ones(1, bool),
             np.zeros(1, i64), np.zeros((1, 1)), np.zeros((1, 1, 3)),
             (np.zeros((1, 1, 1)), np.zeros((1, 1)), np.zeros(1), np.zeros(1, bool)), False, model)
+    u = np.zeros((1, 1), np.uint64)
+    row_hashes(u, np.zeros(1, np.uint64))
+    rows_match(np.zeros((1, 1)), np.zeros(1, i64))
+    lex_order(np.zeros((1, 1)))
     lm_shared(np.zeros((1, 1)), np.zeros((1, 1, 2)), np.ones((1, 1)), np.ones((1, 1), bool), np.ones(6, bool), -1.0,
               1e-8, 1, np.eye(3), np.zeros(3), 1.0, np.zeros(2), False, False, False, np.zeros((0, 3, 1)),
               np.zeros((1, 1)), np.zeros((1, 1, 3)), model)

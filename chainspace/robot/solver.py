@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .compiled import CompiledModel, lm_shared, run_rows
+from .compiled import CompiledModel, _compiles, lm_shared, lex_order, numba, row_hashes, rows_match, run_rows
 from .kinematics import RobotKinematics
 from .views import _PinholeView, _View
 
@@ -77,18 +77,22 @@ def _row_groups(key: np.ndarray, ordered: bool = True) -> tuple[np.ndarray, np.n
     k = np.ascontiguousarray(key, dtype=float) + 0.0  # -0.0 -> 0.0: rows equal as numbers, equal as bytes
     u = k.view(np.uint64)
     h = np.zeros(len(k), np.uint64)
-    mult, shift = np.uint64(0x9E3779B97F4A7C15), np.uint64(29)
-    for j in range(k.shape[1]):  # a multiplicative hash, column after column (wrapping uint64 arithmetic)
-        h ^= u[:, j]
-        h *= mult
-        h ^= h >> shift
+    if numba is not None and _compiles():
+        row_hashes(u, h)
+    else:
+        mult, shift = np.uint64(0x9E3779B97F4A7C15), np.uint64(29)
+        for j in range(k.shape[1]):  # a multiplicative hash, column after column (wrapping uint64 arithmetic)
+            h ^= u[:, j]
+            h *= mult
+            h ^= h >> shift
     _, first, inverse = np.unique(h, return_index=True, return_inverse=True)
     inverse = inverse.reshape(-1)
-    if not (k == k[first][inverse]).all():  # a collision (or NaN): the record sort decides
+    same = rows_match(k, first[inverse]) if numba is not None and _compiles() else (k == k[first[inverse]]).all()
+    if not same:  # a collision (or NaN): the record sort decides
         _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
         return first, inverse.reshape(-1)
     if ordered:
-        order = np.lexsort(k[first].T[::-1])
+        order = lex_order(k[first]) if numba is not None and _compiles() else np.lexsort(k[first].T[::-1])
         rank = np.empty_like(order)
         rank[order] = np.arange(len(order))
         first, inverse = first[order], rank[inverse]
