@@ -72,9 +72,11 @@ def _branch_path(robot: RobotKinematics, starts: list[np.ndarray], target: np.nd
     back = np.zeros((F, K), int)
     acc = data[:, 0].copy()
     for f in range(1, F):  # a loop over frames: the recursion is sequential, each step is (K, K)
-        jump = np.linalg.norm(_wrapped(robot, qs[None, :, f] - qs[:, None, f - 1]), axis=-1)  # (from, to)
-        trans = (np.maximum(jump - free_step, 0.0) / step) ** 2
-        tot = acc[:, None] + trans
+        if (f - 1) % 128 == 0:  # the steps' costs of the next frames at once (one numpy pass, not 128)
+            b = slice(f, min(f + 128, F))
+            jump = np.linalg.norm(_wrapped(robot, qs[None, :, b] - qs[:, None, b.start - 1:b.stop - 1]), axis=-1)
+            trans_block = (np.maximum(jump - free_step, 0.0) / step) ** 2  # (from, to, frame)
+        tot = acc[:, None] + trans_block[:, :, (f - 1) % 128]
         back[f] = np.argmin(tot, 0)
         acc = tot[back[f], np.arange(K)] + data[:, f]
     k = np.empty(F, int)
