@@ -601,11 +601,36 @@ def _schur_step(Hqq, Hqc, gq, Hcc, gc, lam, free, free_view, dq, dc, K):
 
 
 @_njit
+def _angles(q, q_of_v, pair, out):
+    """``RobotKinematics.angles`` of q (F, nq) into out (F, nv): each velocity's coordinate, a continuous
+    joint's (cos, sin) as its angle unwrapped along the frames (``np.unwrap``'s steps)."""
+    F, nv = out.shape
+    for v in range(nv):
+        i = q_of_v[v]
+        if not pair[v]:
+            for r in range(F):
+                out[r, v] = q[r, i]
+            continue
+        out[0, v] = np.arctan2(q[0, i + 1], q[0, i])
+        shift, last = 0.0, out[0, v]
+        for r in range(1, F):
+            a = np.arctan2(q[r, i + 1], q[r, i])
+            dd = a - last
+            ddmod = (dd + np.pi) % (2 * np.pi) - np.pi
+            if ddmod == -np.pi and dd > 0:
+                ddmod = np.pi
+            if abs(dd) >= np.pi:
+                shift += ddmod - dd
+            out[r, v] = a + shift
+            last = a
+
+
+@_njit
 def _prior_terms(prior, q, free, gq):
-    """The motion prior q' P q of :func:`chainspace.robot.solver._smooth_lm` (P in ``prior`` (F, 3, nv):
-    P[f, s, a] couples joint a at frame f to itself at frame f + s, the only entries
-    :func:`chainspace.robot.solver._motion_prior` makes); with gq (F, nv) given, its gradient half P q is
-    added there and the held directions' gradient zeroed. Returns q' P q."""
+    """The motion prior q' P q of :func:`chainspace.robot.solver._smooth_lm` on the angles q (F, nv)
+    (:func:`_angles`; P in ``prior`` (F, 3, nv): P[f, s, a] couples joint a at frame f to itself at frame
+    f + s, the only entries :func:`chainspace.robot.solver._motion_prior` makes); with gq (F, nv) given,
+    its gradient half P q is added there and the held directions' gradient zeroed. Returns q' P q."""
     F, nv = q.shape
     quad = 0.0
     for r in range(F):
@@ -748,13 +773,16 @@ def lm_shared(q, tz, w, free, free_view, delta, tol, max_iter, R, t, sf, cxy, pi
     A, sol = np.empty((F * nv if smooth else 0, 2 * nv + 1)), np.empty((F * nv if smooth else 0, nc + 1))
     _view_arrays(R, t, sf, pinhole, D, M, T)
     _evaluate_all(q, tz, w, M, T, pinhole, sf, cxy, delta, model, Rp, pp, pos, res, cost)
-    total = cost.sum() + (_prior_terms(prior, q, free, gq[:0]) if smooth else 0.0)
+    ang = np.empty((F if smooth else 0, nv))
+    if smooth:
+        _angles(q, q_of_v, pair, ang)
+    total = cost.sum() + (_prior_terms(prior, ang, free, gq[:0]) if smooth else 0.0)
     total_t, lam, converged, it = 0.0, 1e-4, False, 0
     for it in range(1, max_iter + 1):
         _shared_blocks(w, M, T, R, t, sf, pinhole, fit_focal, fit_centre, delta, free, free_view, model, Rp, pp, pos,
                        res, Hqq, Hqc, gq, Hcc, gc)
         if smooth:
-            _prior_terms(prior, q, free, gq)
+            _prior_terms(prior, ang, free, gq)
         stepped = False
         for _ in range(12):
             if smooth:
@@ -766,7 +794,9 @@ def lm_shared(q, tz, w, free, free_view, delta, tol, max_iter, R, t, sf, cxy, pi
             sf_t = _moved_camera(dc, R, t, sf, cxy, pinhole, fit_focal, fit_centre, D, R_t, t_t, c_t)
             _view_arrays(R_t, t_t, sf_t, pinhole, D, M, T)
             _evaluate_all(q_t, tz, w, M, T, pinhole, sf_t, c_t, delta, model, Rp_t, pp_t, pos_t, res_t, cost_t)
-            total_t = cost_t.sum() + (_prior_terms(prior, q_t, free, gq[:0]) if smooth else 0.0)
+            if smooth:
+                _angles(q_t, q_of_v, pair, ang)
+            total_t = cost_t.sum() + (_prior_terms(prior, ang, free, gq[:0]) if smooth else 0.0)
             if total_t <= total:
                 stepped = True
                 break

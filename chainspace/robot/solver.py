@@ -160,8 +160,7 @@ def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.
     The joint-angle block of the normal equations is then banded (two frames either side); it is
     factored as a banded Cholesky (scipy.linalg.cholesky_banded) and the view eliminated by a
     Schur complement, so an iteration stays linear in the number of frames. Same returns. In compiled
-    code (:func:`chainspace.robot.compiled.lm_shared`, the same steps) where it covers the robot and view
-    and the robot has no continuous joint (whose angles are unwrapped along the frames here).
+    code (:func:`chainspace.robot.compiled.lm_shared`, the same steps) where it covers the robot and view.
     """
     from scipy.linalg import cho_solve_banded, cholesky_banded
 
@@ -170,7 +169,7 @@ def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.
     N = F * nv
     u = 3 * nv - 1  # upper bandwidth: frame f couples to f + 2
     tz = np.nan_to_num(target)
-    model = CompiledModel.of(robot) if type(view) in (_View, _PinholeView) and robot.euclidean else None
+    model = CompiledModel.of(robot) if type(view) in (_View, _PinholeView) else None
     band = _prior_band(prior, F, nv) if model is not None and len(view.S) == 1 and not view.per_frame else None
     if band is not None:
         return _shared_view_rows(model, q, tz, w, view, free, free_view, max_iter, tol, delta, band)
