@@ -9,6 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from .compiled import _compiles, branch_steps, numba
 from .kinematics import RobotKinematics, _gauge_q, _held_q, _random_q, _seeded, _wrapped
 from .views import _PinholeView, _View, _camera_view, similarity_align
 from .solver import _sequence_lm
@@ -71,11 +72,17 @@ def _branch_path(robot: RobotKinematics, starts: list[np.ndarray], target: np.nd
     data += 0.05 * np.abs(_wrapped(robot, qs - robot.q_rest)).sum(-1)
     back = np.zeros((F, K), int)
     acc = data[:, 0].copy()
+    compiled = numba is not None and _compiles()
+    qc = np.ascontiguousarray(qs)
     for f in range(1, F):  # a loop over frames: the recursion is sequential, each step is (K, K)
-        if (f - 1) % 128 == 0:  # the steps' costs of the next frames at once (one numpy pass, not 128)
+        if (f - 1) % 128 == 0:  # the steps' costs of the next frames at once (one pass, not 128)
             b = slice(f, min(f + 128, F))
-            jump = np.linalg.norm(_wrapped(robot, qs[None, :, b] - qs[:, None, b.start - 1:b.stop - 1]), axis=-1)
-            trans_block = (np.maximum(jump - free_step, 0.0) / step) ** 2  # (from, to, frame)
+            if compiled:  # the same numbers, without the (K, K, 128, nq) temporaries
+                trans_block = np.empty((K, K, b.stop - b.start))
+                branch_steps(qc, robot.revolute, b.start, free_step, step, trans_block)
+            else:
+                jump = np.linalg.norm(_wrapped(robot, qs[None, :, b] - qs[:, None, b.start - 1:b.stop - 1]), axis=-1)
+                trans_block = (np.maximum(jump - free_step, 0.0) / step) ** 2  # (from, to, frame)
         tot = acc[:, None] + trans_block[:, :, (f - 1) % 128]
         back[f] = np.argmin(tot, 0)
         acc = tot[back[f], np.arange(K)] + data[:, f]

@@ -881,6 +881,27 @@ def lex_order(k):
     return order
 
 
+@_njit
+def branch_steps(qs, turning, first, free_step, step, out):
+    """The branch path's step costs from frame f - 1 to f, f = first, first + 1, ...: out[a, b, i] (K, K, n)
+    for solution a of frame first + i - 1 to solution b of frame first + i, qs (K, F, nq), as
+    ``candidates._branch_path`` writes them in numpy (the wrapped step's norm, its excess over
+    free_step, over step, squared), the same numbers."""
+    K, n, nq = qs.shape[0], out.shape[2], qs.shape[2]
+    for i in range(n):
+        f = first + i
+        for a in range(K):
+            for b in range(K):
+                s2 = 0.0
+                for j in range(nq):
+                    d = qs[b, f, j] - qs[a, f - 1, j]
+                    if turning[j]:
+                        d = (d + np.pi) % (2 * np.pi) - np.pi
+                    s2 += d * d
+                x = max(np.sqrt(s2) - free_step, 0.0) / step
+                out[a, b, i] = x * x
+
+
 def threads() -> int:
     """Threads that :func:`run_rows` shares its rows among: ``CHAINSPACE_THREADS`` if set, else the cores
     this process may use (at most 8)."""
@@ -950,6 +971,7 @@ def compile_now() -> None:
     row_hashes(u, np.zeros(1, np.uint64))
     rows_match(np.zeros((1, 1)), np.zeros(1, i64))
     lex_order(np.zeros((1, 1)))
+    branch_steps(np.zeros((1, 2, 1)), np.zeros(1, bool), 1, 0.15, 0.1, np.zeros((1, 1, 1)))
     lm_shared(np.zeros((1, 1)), np.zeros((1, 1, 2)), np.ones((1, 1)), np.ones((1, 1), bool), np.ones(6, bool), -1.0,
               1e-8, 1, np.eye(3), np.zeros(3), 1.0, np.zeros(2), False, False, False, np.zeros((0, 3, 1)),
               np.zeros((1, 1)), np.zeros((1, 1, 3)), model)
