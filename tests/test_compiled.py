@@ -212,3 +212,18 @@ def test_a_shared_camera_moves_with_the_joints_as_in_numpy(name, smooth, kind, d
         assert cost_a < 0.5 * ((r0 ** 2).sum() + ang0 @ (prior @ ang0))
     else:  # a fit, not noise: the residuals are those of 1 px noise (or exact 3D points)
         assert np.median(a[2]) < (1e-6 if kind == "3d" else 3.0)
+
+
+def test_branch_steps_are_the_numpy_step_costs():
+    # the branch path's step costs (candidates._branch_path): the same numbers as its numpy formula,
+    # turning joints wrapped (steps of whole turns cost nothing), sliding ones not
+    rng = np.random.default_rng(4)
+    turning = np.array([True, True, False, True])
+    qs = rng.normal(scale=3.0, size=(5, 40, 4))
+    qs[1, :, 0] = qs[0, :, 0] + 2 * np.pi  # a whole turn away: no step
+    out = np.empty((5, 5, 39))
+    compiled.branch_steps(qs, turning, 1, 0.15, 0.1, out)
+    d = qs[None, :, 1:] - qs[:, None, :-1]
+    jump = np.linalg.norm(np.where(turning, (d + np.pi) % (2 * np.pi) - np.pi, d), axis=-1)
+    np.testing.assert_array_equal(out, (np.maximum(jump - 0.15, 0.0) / 0.1) ** 2)
+    assert out.min() == 0.0 and out.max() > 100.0
