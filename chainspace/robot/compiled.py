@@ -652,6 +652,42 @@ def _prior_terms(prior, q, free, gq):
 
 
 @_njit
+def _band_cholesky(A):
+    """Cholesky factor L of a symmetric positive definite band matrix, in place: A (N, u + 1) holds entry
+    (i, i - k) of the lower band at A[i, k], and then L's."""
+    N, u = A.shape[0], A.shape[1] - 1
+    for j in range(N):
+        s = A[j, 0]
+        for k in range(1, min(j, u) + 1):
+            s -= A[j, k] * A[j, k]
+        ljj = np.sqrt(s)
+        A[j, 0] = ljj
+        for i in range(j + 1, min(N, j + u + 1)):
+            s = A[i, i - j]
+            for m in range(max(i - u, 0), j):
+                s -= A[i, i - m] * A[j, j - m]
+            A[i, i - j] = s / ljj
+
+
+@_njit
+def _band_solve(L, B):
+    """B <- (L L')^-1 B in place, column by column, L a band Cholesky factor as :func:`_band_cholesky`
+    leaves it."""
+    N, u = L.shape[0], L.shape[1] - 1
+    for col in range(B.shape[1]):
+        for i in range(N):
+            s = B[i, col]
+            for m in range(max(i - u, 0), i):
+                s -= L[i, i - m] * B[m, col]
+            B[i, col] = s / L[i, 0]
+        for i in range(N - 1, -1, -1):
+            s = B[i, col]
+            for m in range(i + 1, min(N, i + u + 1)):
+                s -= L[m, m - i] * B[m, col]
+            B[i, col] = s / L[i, 0]
+
+
+@_njit
 def _banded_step(Hqq, Hqc, gq, Hcc, gc, prior, lam, free, free_view, dq, dc, A, sol):
     """:func:`_schur_step` with the motion prior: the joint angles' block is every frame's Hqq plus the
     prior (``prior`` as :func:`_prior_terms` takes it), banded (a joint couples to itself two frames on),
@@ -661,7 +697,7 @@ def _banded_step(Hqq, Hqc, gq, Hcc, gc, prior, lam, free, free_view, dq, dc, A, 
     [Hqc | gq]. Same signs as :func:`_schur_step`."""
     F, nv = gq.shape
     nc = len(gc)
-    N, u = F * nv, 2 * nv
+    N = F * nv
     mean = 0.0
     for r in range(F):
         for a in range(nv):
@@ -681,28 +717,8 @@ def _banded_step(Hqq, Hqc, gq, Hcc, gc, prior, lam, free, free_view, dq, dc, A, 
             for c in range(nc):
                 sol[i, c] = Hqc[r, a, c]
             sol[i, nc] = gq[r, a]
-    for j in range(N):  # Cholesky, in place: A's band becomes L's
-        s = A[j, 0]
-        for k in range(1, min(j, u) + 1):
-            s -= A[j, k] * A[j, k]
-        ljj = np.sqrt(s)
-        A[j, 0] = ljj
-        for i in range(j + 1, min(N, j + u + 1)):
-            s = A[i, i - j]
-            for m in range(max(i - u, 0), j):
-                s -= A[i, i - m] * A[j, j - m]
-            A[i, i - j] = s / ljj
-    for col in range(nc + 1):  # L^-T L^-1 [Hqc | gq], column by column
-        for i in range(N):
-            s = sol[i, col]
-            for m in range(max(i - u, 0), i):
-                s -= A[i, i - m] * sol[m, col]
-            sol[i, col] = s / A[i, 0]
-        for i in range(N - 1, -1, -1):
-            s = sol[i, col]
-            for m in range(i + 1, min(N, i + u + 1)):
-                s -= A[m, m - i] * sol[m, col]
-            sol[i, col] = s / A[i, 0]
+    _band_cholesky(A)
+    _band_solve(A, sol)  # the band's inverse times [Hqc | gq]
     schur, rhs = Hcc.copy(), gc.copy()
     for c in range(nc):
         schur[c, c] += lam * (Hcc[c, c] + 1e-12) + (0.0 if free_view[c] else 1.0)
