@@ -551,9 +551,6 @@ def _schur_step(Hqq, Hqc, gq, Hcc, gc, lam, free, free_view, dq, dc, K):
     nc + 1): scratch, left each frame's damped block's inverse times [Hqc | gq]."""
     F, nv = gq.shape
     nc = len(gc)
-    schur, rhs = Hcc.copy(), gc.copy()
-    for c in range(nc):
-        schur[c, c] += lam * (Hcc[c, c] + 1e-12) + (0.0 if free_view[c] else 1.0)
     L = np.empty((nv, nv))
     for r in range(F):
         mean = 0.0
@@ -579,6 +576,20 @@ def _schur_step(Hqq, Hqc, gq, Hcc, gc, lam, free, free_view, dq, dc, K):
                 for m in range(a + 1, nv):
                     s -= L[m, a] * K[r, m, col]
                 K[r, a, col] = s / L[a, a]
+    _camera_then_joints(Hqc, gq, Hcc, gc, lam, free, free_view, K, dq, dc)
+
+
+@_njit
+def _camera_then_joints(Hqc, gq, Hcc, gc, lam, free, free_view, K, dq, dc):
+    """The end of a damped step with the shared camera (:func:`_schur_step`, :func:`_banded_step`), given
+    K (F, nv, nc + 1), the joint block's damped inverse times [Hqc | gq]: the camera's step dc from its
+    Schur complement (damped by lam times its diagonal, held parameters pinned), then the joints' dq."""
+    F, nv = gq.shape
+    nc = len(gc)
+    schur, rhs = Hcc.copy(), gc.copy()
+    for c in range(nc):
+        schur[c, c] += lam * (Hcc[c, c] + 1e-12) + (0.0 if free_view[c] else 1.0)
+    for r in range(F):
         for c in range(nc):
             for d in range(nc):
                 s = 0.0
@@ -688,16 +699,17 @@ def _band_solve(L, B):
 
 
 @_njit
-def _banded_step(Hqq, Hqc, gq, Hcc, gc, prior, lam, free, free_view, dq, dc, A, sol):
+def _banded_step(Hqq, Hqc, gq, Hcc, gc, prior, lam, free, free_view, dq, dc, A, K):
     """:func:`_schur_step` with the motion prior: the joint angles' block is every frame's Hqq plus the
     prior (``prior`` as :func:`_prior_terms` takes it), banded (a joint couples to itself two frames on),
     factored by a banded Cholesky in A (F nv, 2 nv + 1): A[i, k] holds entry (i, i - k). The damping is
     ``_smooth_lm``'s: lam times each diagonal entry plus a billionth of their mean, held joint directions
-    pinned by 1e12, held camera directions by 1. sol (F nv, nc + 1): scratch, the band's inverse times
-    [Hqc | gq]. Same signs as :func:`_schur_step`."""
+    pinned by 1e12, held camera directions by 1. K (F, nv, nc + 1): scratch, as :func:`_schur_step`'s.
+    Same signs."""
     F, nv = gq.shape
     nc = len(gc)
     N = F * nv
+    sol = K.reshape(N, nc + 1)  # row r nv + a: frame r's joint a
     mean = 0.0
     for r in range(F):
         for a in range(nv):
@@ -719,26 +731,7 @@ def _banded_step(Hqq, Hqc, gq, Hcc, gc, prior, lam, free, free_view, dq, dc, A, 
             sol[i, nc] = gq[r, a]
     _band_cholesky(A)
     _band_solve(A, sol)  # the band's inverse times [Hqc | gq]
-    schur, rhs = Hcc.copy(), gc.copy()
-    for c in range(nc):
-        schur[c, c] += lam * (Hcc[c, c] + 1e-12) + (0.0 if free_view[c] else 1.0)
-    for r in range(F):
-        for a in range(nv):
-            i = r * nv + a
-            for c in range(nc):
-                for d in range(nc):
-                    schur[c, d] -= Hqc[r, a, c] * sol[i, d]
-                rhs[c] -= Hqc[r, a, c] * sol[i, nc]
-    _solve(schur, rhs, dc)
-    for c in range(nc):
-        dc[c] = -dc[c] if free_view[c] else 0.0
-    for r in range(F):
-        for a in range(nv):
-            i = r * nv + a
-            s = sol[i, nc]
-            for c in range(nc):
-                s += sol[i, c] * dc[c]
-            dq[r, a] = s if free[r, a] else 0.0
+    _camera_then_joints(Hqc, gq, Hcc, gc, lam, free, free_view, K, dq, dc)
 
 
 @_njit_inline
@@ -786,7 +779,7 @@ def lm_shared(q, tz, w, free, free_view, delta, tol, max_iter, R, t, sf, cxy, pi
     M, T, q_t = np.zeros((3, 3)), np.zeros(3), np.empty((F, nq))
     R_t, t_t, c_t = np.empty((3, 3)), np.empty(3), np.empty(2)
     smooth = prior.shape[0] > 0
-    A, sol = np.empty((F * nv if smooth else 0, 2 * nv + 1)), np.empty((F * nv if smooth else 0, nc + 1))
+    A = np.empty((F * nv if smooth else 0, 2 * nv + 1))
     _view_arrays(R, t, sf, pinhole, D, M, T)
     _evaluate_all(q, tz, w, M, T, pinhole, sf, cxy, delta, model, Rp, pp, pos, res, cost)
     ang = np.empty((F if smooth else 0, nv))
@@ -802,7 +795,7 @@ def lm_shared(q, tz, w, free, free_view, delta, tol, max_iter, R, t, sf, cxy, pi
         stepped = False
         for _ in range(12):
             if smooth:
-                _banded_step(Hqq, Hqc, gq, Hcc, gc, prior, lam, free, free_view, dq, dc, A, sol)
+                _banded_step(Hqq, Hqc, gq, Hcc, gc, prior, lam, free, free_view, dq, dc, A, K)
             else:
                 _schur_step(Hqq, Hqc, gq, Hcc, gc, lam, free, free_view, dq, dc, K)
             for r in range(F):
