@@ -306,11 +306,16 @@ def test_repeated_and_meeting_starts_are_solved_once_with_the_same_answers():
     assert np.array_equal(q[8], q[0]) and np.array_equal(q[9], q[5]) and np.array_equal(q[10], q[5])
 
 
-def test_row_groups_are_np_uniques_groups_in_its_order():
+@pytest.mark.parametrize("compiled", [True, False])
+def test_row_groups_are_np_uniques_groups_in_its_order(monkeypatch, compiled):
     """The solver's grouping of equal rows (a hash of the bytes, checked) gives np.unique's first
     occurrences, order and labels, with -0.0 and 0.0 one value as numpy compares them; rows it cannot
-    hash as numbers (NaN) go to np.unique itself."""
+    hash as numbers (NaN) go to np.unique itself. In compiled code and in numpy (without numba)."""
+    from chainspace.robot import solver
     from chainspace.robot.solver import _row_groups
+
+    if not compiled:
+        monkeypatch.setattr(solver, "_compiles", lambda: False)
 
     rng = np.random.default_rng(0)
     base = np.round(rng.normal(size=(40, 9)), 1)

@@ -9,7 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .compiled import _compiles, branch_steps, numba
+from .compiled import _compiles, branch_steps
 from .kinematics import RobotKinematics, _gauge_q, _held_q, _random_q, _seeded, _wrapped
 from .views import _PinholeView, _View, _camera_view, similarity_align
 from .solver import _sequence_lm
@@ -72,7 +72,7 @@ def _branch_path(robot: RobotKinematics, starts: list[np.ndarray], target: np.nd
     data += 0.05 * np.abs(_wrapped(robot, qs - robot.q_rest)).sum(-1)
     back = np.zeros((F, K), int)
     acc = data[:, 0].copy()
-    compiled = numba is not None and _compiles()
+    compiled = _compiles()
     qc = np.ascontiguousarray(qs)
     for f in range(1, F):  # a loop over frames: the recursion is sequential, each step is (K, K)
         if (f - 1) % 128 == 0:  # the steps' costs of the next frames at once (one pass, not 128)

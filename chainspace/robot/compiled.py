@@ -950,7 +950,10 @@ def run_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, 
 @functools.cache
 def _compiles() -> bool:
     """Whether the solver compiles here (once per process; numba's cache makes it quick after the first
-    time). Where numba is installed but cannot compile, the numpy solver is used and a warning says so."""
+    time): not without numba. Where numba is installed but cannot compile, the numpy solver is used and
+    a warning says so."""
+    if numba is None:
+        return False
     try:
         compile_now()
     except Exception as exc:  # numba's errors come from many places (typing, LLVM, the cache's folder)

@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .compiled import CompiledModel, _compiles, lm_shared, lex_order, numba, row_hashes, rows_match, run_rows
+from .compiled import CompiledModel, _compiles, lm_shared, lex_order, row_hashes, rows_match, run_rows
 from .kinematics import RobotKinematics
 from .views import _PinholeView, _View
 
@@ -79,7 +79,7 @@ def _row_groups(key: np.ndarray, ordered: bool = True) -> tuple[np.ndarray, np.n
     k = np.ascontiguousarray(key, dtype=float) + 0.0  # -0.0 -> 0.0: rows equal as numbers, equal as bytes
     u = k.view(np.uint64)
     h = np.zeros(len(k), np.uint64)
-    compiled = numba is not None and _compiles()
+    compiled = _compiles()
     if compiled:
         row_hashes(u, h)
     else:
