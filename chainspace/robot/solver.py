@@ -166,13 +166,13 @@ def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.
 
     F, J, D = target.shape
     nv, nc = robot.nv, view.n_params
-    N = F * nv
-    u = 3 * nv - 1  # upper bandwidth: frame f couples to f + 2
     tz = np.nan_to_num(target)
     model = CompiledModel.of(robot) if type(view) in (_View, _PinholeView) else None
     band = _prior_band(prior, F, nv) if model is not None and len(view.S) == 1 and not view.per_frame else None
     if band is not None:
         return _shared_view_rows(model, q, tz, w, view, free, free_view, max_iter, tol, delta, band)
+    N = F * nv
+    u = 3 * nv - 1  # upper bandwidth: frame f couples to f + 2
     frozen = (~free).reshape(-1)
     prior_band = np.zeros((u + 1, N))
     for d in range(u + 1):  # upper diagonals of the prior, in the banded layout
