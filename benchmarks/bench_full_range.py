@@ -6,6 +6,7 @@
     python benchmarks/bench_full_range.py --camera static --frames 30 --first-seed 28 --seeds 2  # held-out seeds
     python benchmarks/bench_full_range.py --quick                  # 2 robots x 1 setting, 20 frames
     python benchmarks/bench_full_range.py --no-search-ties         # the fit without its search for ties
+    python benchmarks/bench_full_range.py --compare old.json new.json  # two builds' runs (--json) compared
 
 Prints one markdown table, then every silent failure, every flagged joint with its reason and every run
 that returned no fit (see chainspace.bench.full_range). Exit code 1 when a robot misses the target
@@ -17,8 +18,8 @@ import json
 import sys
 from pathlib import Path
 
-from chainspace.bench.full_range import (DEFAULT_SETTINGS, ROBOTS, SETTINGS, format_full_range, run_full_range,
-                                         summarise)
+from chainspace.bench.full_range import (DEFAULT_SETTINGS, ROBOTS, SETTINGS, compare_full_range, format_full_range,
+                                         run_full_range, summarise)
 
 
 def main(argv=None) -> int:
@@ -36,7 +37,13 @@ def main(argv=None) -> int:
     p.add_argument("--quick", action="store_true", help="milling arm and UR5, full range from above, 20 frames")
     p.add_argument("--json", default=None, help="also write every run to this JSON file (refuses to overwrite)")
     p.add_argument("--from-json", nargs="+", default=None, help="print the table of runs saved with --json")
+    p.add_argument("--compare", nargs=2, metavar=("OLD", "NEW"), default=None,
+                   help="compare two files saved with --json (two builds, same runs): counts and changed runs")
     a = p.parse_args(argv)
+    if a.compare:
+        old, new = (json.loads(Path(f).read_text()) for f in a.compare)
+        print(compare_full_range(old, new))
+        return 0
     robots = a.robots or (["milling_arm", "ur5"] if a.quick else list(ROBOTS))
     settings = a.settings or (["full, above"] if a.quick else list(DEFAULT_SETTINGS))
     frames = a.frames or (20 if a.quick else 60)

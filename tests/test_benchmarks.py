@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from chainspace.bench.full_range import format_full_range, summarise
+from chainspace.bench.full_range import compare_full_range, format_full_range, summarise
 from chainspace.bench.hidden_ends import format_hidden_ends
 from chainspace.bench.robustness import check_targets, find_cliffs
 
@@ -117,6 +117,18 @@ def test_full_range_table_counts_silent_flags_and_failures():
     assert rows["refused"]["verdict"] == "refused"
     text = format_full_range(runs)
     assert "Target met on 2 of 4 robots" in text and "j1 (full, above, 177 deg)" in text and "boom" in text
+
+
+def test_full_range_comparison_counts_both_sets_and_names_each_changed_run():
+    old = [_run("a", errors=(0.5, 1.0)), _run("b", errors=(0.5, 177.0), statuses=["observable", "ambiguous"]),
+           _run("c", errors=(0.5, 0.7))]
+    new = [_run("a", errors=(0.5, 177.0)), _run("b", errors=(0.6, 177.0), statuses=["observable", "ambiguous"]),
+           _run("c", errors=(0.5, 1.9)), _run("d", outcome="crashed")]
+    text = compare_full_range(old, new)
+    assert "| old | 3 | 5 | 1 | 0 | 0 | 0 | 0 |" in text and "| new | 4 | 4 | 1 | 1 | 1 | 0 | 1 |" in text, text
+    assert "Runs that changed (2 of 3):" in text  # a (now silent) and c (its worst ok joint 1.2 deg further)
+    assert "a full, above seed 0: old fit, silent -, flagged -, worst ok 1.00 deg; new fit, silent j1" in text
+    assert "- b full" not in text and "d full, above seed 0: only in the new set" in text
 
 
 def test_hidden_ends_table_keeps_a_flipped_run_in_its_mean_and_max():

@@ -246,3 +246,46 @@ def format_full_range(runs: Sequence[dict[str, Any]], *, camera: str = "pinhole"
         if lines:
             out += ["", f"{title}:"] + lines
     return "\n".join(out)
+
+
+def _run_summary(r: dict[str, Any]) -> tuple:
+    """(outcome, silent joints, flagged joints, worst joint judged ok (deg)) of one run."""
+    if r["outcome"] != "fit":
+        return r["outcome"], (), (), 0.0
+    names = lambda v: tuple(sorted(j["name"] for j in r["joints"] if j["verdict"] == v))  # noqa: E731
+    worst = max([j["error"] for j in r["joints"] if j["verdict"] == "ok" and j["unit"] == "deg"], default=0.0)
+    return "fit", names("silent"), names("flagged"), worst
+
+
+def compare_full_range(old: Sequence[dict[str, Any]], new: Sequence[dict[str, Any]], moved_deg: float = 0.5) -> str:
+    """Markdown: two sets of runs of the same robots, settings and seeds (two builds), side by side: per
+    set the joints ok, flagged and silent, the runs with a silent joint, those with a poor fit flagged and
+    those that returned no fit; then every run whose silent or flagged joints changed or whose worst joint
+    judged ok moved by more than ``moved_deg``, and the runs found in one set only. Why: a change to the
+    solver moves a hard case's outcome one way or the other, and only the counts over every run say
+    which way the change leans."""
+    def key(r):
+        return r["robot"], r["setting"], r["seed"]
+
+    sets = [{key(r): r for r in runs} for runs in (old, new)]
+    out = ["| set | runs | joints ok | flagged | silent | runs with a silent joint | runs flagged poor fit | no fit |",
+           "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for label, runs in zip(("old", "new"), sets):
+        joints = [j for r in runs.values() for j in r["joints"]]
+        count = {v: sum(j["verdict"] == v for j in joints) for v in ("ok", "flagged", "silent")}
+        silent_runs = sum(bool(_run_summary(r)[1]) for r in runs.values())
+        poor = sum(any("poor fit" in j["reason"] for j in r["joints"]) for r in runs.values())
+        no_fit = sum(r["outcome"] != "fit" for r in runs.values())
+        out.append(f"| {label} | {len(runs)} | {count['ok']} | {count['flagged']} | {count['silent']} | "
+                   f"{silent_runs} | {poor} | {no_fit} |")
+    changed = []
+    for k in sorted(set(sets[0]) & set(sets[1]), key=str):
+        a, b = (_run_summary(s[k]) for s in sets)
+        if a[:3] != b[:3] or abs(a[3] - b[3]) > moved_deg:
+            changed.append(f"- {k[0]} {k[1]} seed {k[2]}: " + "; ".join(
+                f"{label} {o}, silent {', '.join(sl) or '-'}, flagged {', '.join(fl) or '-'}, worst ok {w:.2f} deg"
+                for label, (o, sl, fl, w) in zip(("old", "new"), (a, b))))
+    only = [f"- {k[0]} {k[1]} seed {k[2]}: only in the {label} set" for label, s, t in
+            (("old", sets[0], sets[1]), ("new", sets[1], sets[0])) for k in sorted(set(s) - set(t), key=str)]
+    out += ["", f"Runs that changed ({len(changed)} of {len(set(sets[0]) & set(sets[1]))}):"] + (changed or ["- none"])
+    return "\n".join(out + ([""] + only if only else []))
