@@ -41,8 +41,17 @@ def main(argv=None) -> int:
                    help="compare two files saved with --json (two builds, same runs): counts and changed runs")
     a = p.parse_args(argv)
     if a.compare:
-        old, new = (json.loads(Path(f).read_text()) for f in a.compare)
-        print(compare_full_range(old, new))
+        sets = []
+        for f in a.compare:
+            try:
+                runs = json.loads(Path(f).read_text())
+            except (OSError, ValueError) as exc:
+                p.error(f"--compare: cannot read {f}: {exc}")
+            keys = ("robot", "setting", "seed", "outcome", "joints")
+            if not isinstance(runs, list) or not all(isinstance(r, dict) and all(k in r for k in keys) for r in runs):
+                p.error(f"--compare: {f} is not a list of runs as --json writes them (each with {', '.join(keys)})")
+            sets.append(runs)
+        print(compare_full_range(*sets))
         return 0
     robots = a.robots or (["milling_arm", "ur5"] if a.quick else list(ROBOTS))
     settings = a.settings or (["full, above"] if a.quick else list(DEFAULT_SETTINGS))

@@ -131,6 +131,21 @@ def test_full_range_comparison_counts_both_sets_and_names_each_changed_run():
     assert "- b full" not in text and "d full, above seed 0: only in the new set" in text
 
 
+def test_full_range_comparison_from_the_command_line(tmp_path, capsys):
+    import json
+
+    old, new, bad = tmp_path / "old.json", tmp_path / "new.json", tmp_path / "bad.json"
+    old.write_text(json.dumps([_run("a", errors=(0.5, 1.0))]))
+    new.write_text(json.dumps([_run("a", errors=(0.5, 177.0))]))
+    bad.write_text(json.dumps({"robot": "a"}))
+    assert _main("bench_full_range.py")(["--compare", str(old), str(new)]) == 0
+    assert "Runs that changed (1 of 1):" in capsys.readouterr().out
+    for args, says in (([str(tmp_path / "gone.json"), str(new)], "cannot read"), ([str(bad), str(new)], "not a list")):
+        with pytest.raises(SystemExit):
+            _main("bench_full_range.py")(["--compare", *args])
+        assert says in capsys.readouterr().err
+
+
 def test_hidden_ends_table_keeps_a_flipped_run_in_its_mean_and_max():
     rows = [dict(trial=k, end="last", decay=None, worst_deg=w, error_mm=10.0, silent=["a4"] if w > 90 else [])
             for k, w in enumerate((4.0, 5.0, 177.0))]

@@ -252,9 +252,10 @@ def _run_summary(r: dict[str, Any]) -> tuple:
     """(outcome, silent joints, flagged joints, worst joint judged ok (deg)) of one run."""
     if r["outcome"] != "fit":
         return r["outcome"], (), (), 0.0
-    names = lambda v: tuple(sorted(j["name"] for j in r["joints"] if j["verdict"] == v))  # noqa: E731
+    silent, flagged = (tuple(sorted(j["name"] for j in r["joints"] if j["verdict"] == v))
+                       for v in ("silent", "flagged"))
     worst = max([j["error"] for j in r["joints"] if j["verdict"] == "ok" and j["unit"] == "deg"], default=0.0)
-    return "fit", names("silent"), names("flagged"), worst
+    return "fit", silent, flagged, worst
 
 
 def compare_full_range(old: Sequence[dict[str, Any]], new: Sequence[dict[str, Any]], moved_deg: float = 0.5) -> str:
