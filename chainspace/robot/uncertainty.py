@@ -534,7 +534,7 @@ def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float,
         return moved + [(score(m), {"q": m}) for m in twins + flips] + refitted(far)
     # and the best other continuous branch (_other_branch), refined and scored alike
     return moved + [(score(m), {"q": m}) for m in twins] + \
-        refitted(flips + far + [b["q"] for b in _other_branch(robot, winner, tracks, w, free, sigma)])
+        refitted(flips + far + [b["q"] for b in _other_branch(robot, winner, tracks, w, free, sigma, flips)])
 
 
 def _wrist_twins(robot: RobotKinematics, q: np.ndarray, free: np.ndarray, moved: bool = False) -> list[np.ndarray]:
@@ -851,10 +851,11 @@ DISTINCT_DEG = 2.0  # a frame's pose counts as the winner's when no joint differ
 
 
 def _other_branch(robot: RobotKinematics, winner: dict, tracks: np.ndarray, w: np.ndarray, free: np.ndarray,
-                  sigma: float, n_random: int = 12, seed: int = 1) -> list[dict]:
+                  sigma: float, flips: list[np.ndarray], n_random: int = 12, seed: int = 1) -> list[dict]:
     """The best continuous motion that differs from the winner: per frame, the poses that fit that
     frame's tracks under the winner's camera (IK from random configurations, the winner's depth flips
-    and the rest-pose seeds, batched), those within :data:`DISTINCT_DEG` of the winner's pose left out
+    ``flips`` (:func:`chainspace.robot.candidates._depth_flips` of the winner's motion, camera and
+    ``free``: the caller has them) and the rest-pose seeds, batched), those within :data:`DISTINCT_DEG` of the winner's pose left out
     (unless a frame has no other), then the path through them of the lowest cost by dynamic programming,
     as :func:`chainspace.robot.candidates._viterbi_branches` chooses a path (squared residuals over
     sigma^2, jumps between frames charged). Returns [{"q": (F, nq)}], or [] when no such path exists.
@@ -864,7 +865,6 @@ def _other_branch(robot: RobotKinematics, winner: dict, tracks: np.ndarray, w: n
     only tracked point is seen along a ray can sit on another branch in every frame, a branch no mirror
     reaches (the xArm7's joint5 127 degrees off, as well fitted as the truth). This search looks for
     such a path directly, so that a tie is reported, not hidden."""
-    from .candidates import _depth_flips
     from .kinematics import _held_q, _random_q, _seeded, _wrapped
     from .solver import _sequence_lm
 
@@ -875,7 +875,7 @@ def _other_branch(robot: RobotKinematics, winner: dict, tracks: np.ndarray, w: n
     held = _held_q(robot, free)
     rand = _random_q(robot, np.random.default_rng(seed), n_random)
     starts = [_seeded(robot, q, free), _seeded(robot, q, free, True)] + [np.where(held, q, r) for r in rand] + \
-        [np.where(held, q, m) for m in _depth_flips(robot, q, view, free)]
+        [np.where(held, q, m) for m in flips]
     K = len(starts)
     idx = np.tile(np.arange(F), K)
     qs, _, rn, _, _, _ = _sequence_lm(robot, np.concatenate(starts), tracks[idx], w[idx], view.take(idx), free[idx],
