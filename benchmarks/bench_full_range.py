@@ -26,7 +26,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--robots", nargs="+", default=None, help=f"default: {' '.join(ROBOTS)}")
     p.add_argument("--settings", nargs="+", choices=list(SETTINGS), default=None)
-    p.add_argument("--camera", default="pinhole", choices=["pinhole", "phone", "industrial", "static"],
+    p.add_argument("--camera", default=None, choices=["pinhole", "phone", "industrial", "static"],
                    help="pinhole (default: a phone or an industrial camera, intrinsics given to the fit) or "
                         "static (weak perspective)")
     p.add_argument("--frames", type=int, default=None, help="frames per run (default 60; --quick 20)")
@@ -40,18 +40,19 @@ def main(argv=None) -> int:
     p.add_argument("--compare", nargs=2, metavar=("OLD", "NEW"), default=None,
                    help="compare two files saved with --json (two builds, same runs): counts and changed runs")
     a = p.parse_args(argv)
+
+    def saved(option: str, f: str) -> list:  # the runs of a file written by --json, or a clear error
+        try:
+            runs = json.loads(Path(f).read_text())
+        except (OSError, ValueError) as exc:
+            p.error(f"{option}: cannot read {f}: {exc}")
+        keys = ("robot", "setting", "seed", "outcome", "joints")
+        if not isinstance(runs, list) or not all(isinstance(r, dict) and all(k in r for k in keys) for r in runs):
+            p.error(f"{option}: {f} is not a list of runs as --json writes them (each with {', '.join(keys)})")
+        return runs
+
     if a.compare:
-        sets = []
-        for f in a.compare:
-            try:
-                runs = json.loads(Path(f).read_text())
-            except (OSError, ValueError) as exc:
-                p.error(f"--compare: cannot read {f}: {exc}")
-            keys = ("robot", "setting", "seed", "outcome", "joints")
-            if not isinstance(runs, list) or not all(isinstance(r, dict) and all(k in r for k in keys) for r in runs):
-                p.error(f"--compare: {f} is not a list of runs as --json writes them (each with {', '.join(keys)})")
-            sets.append(runs)
-        print(compare_full_range(*sets))
+        print(compare_full_range(*(saved("--compare", f) for f in a.compare)))
         return 0
     robots = a.robots or (["milling_arm", "ur5"] if a.quick else list(ROBOTS))
     settings = a.settings or (["full, above"] if a.quick else list(DEFAULT_SETTINGS))
@@ -64,14 +65,19 @@ def main(argv=None) -> int:
         first[0] = False
 
     if a.from_json:
-        runs = [r for f in a.from_json for r in json.loads(Path(f).read_text())]
+        runs = [r for f in a.from_json for r in saved("--from-json", f)]
     else:
-        runs = run_full_range(robots, settings, camera=a.camera, n_frames=frames, seeds=a.seeds,
+        runs = run_full_range(robots, settings, camera=a.camera or "pinhole", n_frames=frames, seeds=a.seeds,
                               first_seed=a.first_seed,
                               search_ties=a.search_ties,
                               progress=lambda m: print(m, file=sys.stderr, flush=True),
                               on_run=save if a.json else None)
-    print(format_full_range(runs, camera=a.camera, n_frames=frames))
+    # saved runs record neither their camera nor their frame count: the table names them as given
+    if a.from_json:
+        camera, frames = a.camera or "not recorded (give --camera)", a.frames
+    else:
+        camera = a.camera or "pinhole"
+    print(format_full_range(runs, camera=camera, n_frames=frames))
     return 0 if all(r["verdict"].startswith("met") for r in summarise(runs)) else 1
 
 

@@ -131,7 +131,7 @@ def test_full_range_comparison_counts_both_sets_and_names_each_changed_run():
     assert "- b full" not in text and "d full, above seed 0: only in the new set" in text
 
 
-def test_full_range_comparison_from_the_command_line(tmp_path, capsys):
+def test_full_range_saved_runs_from_the_command_line(tmp_path, capsys):
     import json
 
     old, new, bad = tmp_path / "old.json", tmp_path / "new.json", tmp_path / "bad.json"
@@ -140,9 +140,16 @@ def test_full_range_comparison_from_the_command_line(tmp_path, capsys):
     bad.write_text(json.dumps({"robot": "a"}))
     assert _main("bench_full_range.py")(["--compare", str(old), str(new)]) == 0
     assert "Runs that changed (1 of 1):" in capsys.readouterr().out
-    for args, says in (([str(tmp_path / "gone.json"), str(new)], "cannot read"), ([str(bad), str(new)], "not a list")):
+    # saved runs record neither camera nor frame count: the table says so rather than guess
+    _main("bench_full_range.py")(["--from-json", str(old)])
+    assert "camera not recorded (give --camera); 1 px noise. " in capsys.readouterr().out
+    _main("bench_full_range.py")(["--from-json", str(old), "--camera", "static", "--frames", "30"])
+    assert "camera static; 1 px noise; 30 frames per run" in capsys.readouterr().out
+    for args, says in ((["--compare", str(tmp_path / "gone.json"), str(new)], "--compare: cannot read"),
+                       (["--compare", str(bad), str(new)], "not a list"),
+                       (["--from-json", str(old), str(bad)], f"--from-json: {bad} is not a list")):
         with pytest.raises(SystemExit):
-            _main("bench_full_range.py")(["--compare", *args])
+            _main("bench_full_range.py")(args)
         assert says in capsys.readouterr().err
 
 
