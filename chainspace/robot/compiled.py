@@ -646,18 +646,16 @@ def _prior_terms(prior, q, free, gq):
     quad = 0.0
     for r in range(F):
         for a in range(nv):
-            pq = prior[r, 0, a] * q[r, a]
+            pq = g = prior[r, 0, a] * q[r, a]  # its row of P q: the entries ahead count twice in q' P q
             for s in (1, 2):
                 if r + s < F:
-                    pq += 2.0 * prior[r, s, a] * q[r + s, a]
+                    ahead = prior[r, s, a] * q[r + s, a]
+                    pq += 2.0 * ahead
+                    g += ahead
+                if r >= s:
+                    g += prior[r - s, s, a] * q[r - s, a]
             quad += q[r, a] * pq
             if gq.shape[0]:
-                g = prior[r, 0, a] * q[r, a]
-                for s in (1, 2):
-                    if r + s < F:
-                        g += prior[r, s, a] * q[r + s, a]
-                    if r >= s:
-                        g += prior[r - s, s, a] * q[r - s, a]
                 gq[r, a] = gq[r, a] + g if free[r, a] else 0.0
     return quad
 
