@@ -855,10 +855,11 @@ def _other_branch(robot: RobotKinematics, winner: dict, tracks: np.ndarray, w: n
     """The best continuous motion that differs from the winner: per frame, the poses that fit that
     frame's tracks under the winner's camera (IK from random configurations, the winner's depth flips
     ``flips`` (:func:`chainspace.robot.candidates._depth_flips` of the winner's motion, camera and
-    ``free``: the caller has them) and the rest-pose seeds, batched), those within :data:`DISTINCT_DEG` of the winner's pose left out
-    (unless a frame has no other), then the path through them of the lowest cost by dynamic programming,
-    as :func:`chainspace.robot.candidates._viterbi_branches` chooses a path (squared residuals over
-    sigma^2, jumps between frames charged). Returns [{"q": (F, nq)}], or [] when no such path exists.
+    ``free``: the caller has them) and the rest-pose seeds, batched), those within :data:`DISTINCT_DEG`
+    of the winner's pose left out (unless a frame has no other), then the path through them of the
+    lowest cost by dynamic programming, as :func:`chainspace.robot.candidates._viterbi_branches` chooses a
+    path (squared residuals over sigma^2, jumps between frames charged). Returns [{"q": (F, nq)}], or []
+    when no such path exists.
 
     Why: the fit keeps one path and, of several that fit alike, the one nearest the rest pose; its
     candidates are local variants of the path it found (mirrors, flips of planar parts). A wrist whose
