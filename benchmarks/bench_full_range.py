@@ -64,19 +64,16 @@ def main(argv=None) -> int:
             fh.write(json.dumps(runs, indent=1, default=float))
         first[0] = False
 
+    # saved runs record neither their camera nor their frame count: the table names them as given
+    camera = a.camera or ("not recorded (give --camera)" if a.from_json else "pinhole")
     if a.from_json:
-        runs = [r for f in a.from_json for r in saved("--from-json", f)]
+        runs, frames = [r for f in a.from_json for r in saved("--from-json", f)], a.frames
     else:
-        runs = run_full_range(robots, settings, camera=a.camera or "pinhole", n_frames=frames, seeds=a.seeds,
+        runs = run_full_range(robots, settings, camera=camera, n_frames=frames, seeds=a.seeds,
                               first_seed=a.first_seed,
                               search_ties=a.search_ties,
                               progress=lambda m: print(m, file=sys.stderr, flush=True),
                               on_run=save if a.json else None)
-    # saved runs record neither their camera nor their frame count: the table names them as given
-    if a.from_json:
-        camera, frames = a.camera or "not recorded (give --camera)", a.frames
-    else:
-        camera = a.camera or "pinhole"
     print(format_full_range(runs, camera=camera, n_frames=frames))
     return 0 if all(r["verdict"].startswith("met") for r in summarise(runs)) else 1
 

@@ -192,6 +192,11 @@ def _stats(values: list[float]) -> str:
     return f"{v.mean():.2f} / {v.max():.2f}"
 
 
+def _verdict_counts(joints: Sequence[dict[str, Any]]) -> dict[str, int]:
+    """How many of the judged joints (:func:`judge_joints`' rows) are ok, flagged and silent."""
+    return {v: sum(j["verdict"] == v for j in joints) for v in ("ok", "flagged", "silent")}
+
+
 def summarise(runs: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per robot: runs, fitted, refused, crashed, joint verdict counts, worst judged joint per run (mean /
     max over every fitted run), worst flagged joint, 3D error, and whether the target is met."""
@@ -200,7 +205,7 @@ def summarise(runs: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         rs = [r for r in runs if r["robot"] == name]
         fitted = [r for r in rs if r["outcome"] == "fit"]
         joints = [j for r in fitted for j in r["joints"]]
-        count = {v: sum(j["verdict"] == v for j in joints) for v in ("ok", "flagged", "silent")}
+        count = _verdict_counts(joints)
         judged = [max([j["error"] for j in r["joints"] if j["verdict"] != "flagged" and j["unit"] == "deg"],
                       default=0.0) for r in fitted]
         flagged = [j["error"] for j in joints if j["verdict"] == "flagged" and j["unit"] == "deg"]
@@ -272,8 +277,7 @@ def compare_full_range(old: Sequence[dict[str, Any]], new: Sequence[dict[str, An
     out = ["| set | runs | joints ok | flagged | silent | runs with a silent joint | runs flagged poor fit | no fit |",
            "|---|---:|---:|---:|---:|---:|---:|---:|"]
     for label, runs in zip(("old", "new"), sets):
-        joints = [j for r in runs.values() for j in r["joints"]]
-        count = {v: sum(j["verdict"] == v for j in joints) for v in ("ok", "flagged", "silent")}
+        count = _verdict_counts([j for r in runs.values() for j in r["joints"]])
         silent_runs = sum(bool(_run_summary(r)[1]) for r in runs.values())
         poor = sum(any("poor fit" in j["reason"] for j in r["joints"]) for r in runs.values())
         no_fit = sum(r["outcome"] != "fit" for r in runs.values())
