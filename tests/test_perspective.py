@@ -116,6 +116,22 @@ def test_depth_from_bone_lengths_follows_the_subject(walk):
     assert np.sqrt(np.mean((est - true) ** 2)) < 0.026
 
 
+def test_correction_passes_keep_the_common_scale(chain, walk):
+    # Walking towards the camera and away 3.5 m from it, the subject's distance changes by 10 %
+    # (std). A correction pass moves the rays by the perspective's own correction (each joint's
+    # depth relative to the subject's), measured 0.32 of the subject's image size (its farthest
+    # points); when the passes dropped the common scale they also moved the rays by the change of
+    # distance, 0.54. Tolerance 0.42.
+    X = out_and_back(walk)
+    W, cam = static_pinhole_view(X, distance_m=3.5, azimuth_deg=walking_direction(walk), seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = reconstruct(W, chain, intrinsics=cam.camera, perspective_iter=2)
+    change = rec.history["perspective"]["change"]
+    print("rays moved", change)
+    assert len(change) == 2 and change[0] < 0.42 and change[1] < change[0]
+
+
 @pytest.mark.parametrize("motion", ["turning", "towards"])
 def test_stage_choice_never_keeps_the_worse_track_score(chain, walk, motion):
     X = turning_walk(walk) if motion == "turning" else out_and_back(walk)

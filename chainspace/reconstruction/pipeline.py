@@ -378,8 +378,9 @@ def reconstruct(
         axes; shared bone lengths) fits the full pinhole model. ``perspective_iter`` > 1 adds
         POSIT-style passes that rerun the weak-perspective stages on rays corrected with the
         previous pass's depths; default 1 (no such pass): on CMU 35_01/35_02 (straight, turning,
-        towards/away, 0 and 2 px) one pass gave 23-51 mm, two passes 18-77 mm (the correction
-        made turning walks with 2 px noise 47 -> 76 mm). See ``Reconstruction.intrinsics`` for what
+        towards/away, 0 and 2 px) one pass gave 28.6-48.0 mm (mean 37.5), two passes 21.4-73.0 mm
+        (mean 40.8): they help noise-free walks (turning 40.1 -> 32.6 and 35.8 -> 27.4 mm) and
+        hurt turning walks with 2 px noise (42.2 -> 58.5 and 40.3 -> 73.0 mm). See ``Reconstruction.intrinsics`` for what
         cameras and translations mean then.
     blas_threads
         BLAS threads while it runs (see Notes): 1 by default, ``None`` to leave the BLAS
@@ -537,7 +538,9 @@ def _run_perspective(W_px, c, given, X0, T, chain, method, max_iter, tol, progre
         d = pts[..., 2] - 1.0 / scale[:, None]
         pts = pts @ Q  # virtual camera axes -> the real camera's
         persp["reprojection"].append(_rms(W_px, c, camera.project(pts)))
-        corrected = rays * (1.0 + scale[:, None] * d)[..., None]
+        # at the common scale of the first pass: without the gain the next pass would see the
+        # subject's distance change again (the error the common scale is there to remove)
+        corrected = rays * ((1.0 + scale[:, None] * d) * gain[:, None])[..., None]
         seen = c > 0
         size = _spread(rays, seen)
         change = float(np.abs(where_seen(corrected - Wc, seen)).max()) / size
