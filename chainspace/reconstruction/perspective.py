@@ -33,7 +33,15 @@ help noise-free walks and hurt noisy turning ones (see ``reconstruct``). Correct
 the refinement from its own bones, every sweep, drifted further (35_01 straight, 0 px: 38 -> 74 mm
 after the weak stages): a bone near the image plane turns a small change of its image length into a
 large change of its depth, so such an alternation is unstable there; the depths and the image have
-to be solved together, as :func:`perspective_refine` does per frame. The weak-perspective stages also suffer from the scale 1 / Z_k changing over a sequence (a subject
+to be solved together, as :func:`perspective_refine` does per frame. Tried that way on 2026-12-06 and
+not kept (local branch ``experiment/perspective-refine``): the refinement with the perspective data
+term (given its parent's depth a bone's residual is linear in the bone, ``s x[:2] - kappa W_child x[2]
+- (W_child - W_parent)(1 + kappa d_parent)``, exact at the truth) in its Gauss-Newton step and the two
+ray-sphere intersections as its sign proposals. On CMU 35_01/35_02 (tune set, 12 runs) it ended at
+37.1 mm at 0 px (36.7 without it) and 43.2 mm at 2 px (38.3). Started from the truth it stays there
+(3.7 mm, true cameras and a prior turned to the truth); started 5 cm off (per bone coordinate) it
+ends 51 mm off, as the weak refinement on an orthographic view does from such starts (41 mm): the
+refinement's basin is narrow and its start decides. The weak-perspective stages also suffer from the scale 1 / Z_k changing over a sequence (a subject
 walking a circle 3.5-4.7 m away: exactly corrected rays at the per-frame scales 50.8 mm, rescaled
 to one scale 22.2 mm), hence step (3)'s common scale. Depths from the weak stage's own per-frame
 camera scales were too rough for it (1-6.5 % off, no gain); from the image bone lengths
