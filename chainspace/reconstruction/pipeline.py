@@ -380,8 +380,8 @@ def reconstruct(
         previous pass's depths; default 1 (no such pass): on CMU 35_01/35_02 (straight, turning,
         towards/away, 0 and 2 px) one pass gave 28.6-48.0 mm (mean 37.5), two passes 21.4-73.0 mm
         (mean 40.8): they help noise-free walks (turning 40.1 -> 32.6 and 35.8 -> 27.4 mm) and
-        hurt turning walks with 2 px noise (42.2 -> 58.5 and 40.3 -> 73.0 mm). See ``Reconstruction.intrinsics`` for what
-        cameras and translations mean then.
+        hurt turning walks with 2 px noise (42.2 -> 58.5 and 40.3 -> 73.0 mm). See
+        ``Reconstruction.intrinsics`` for what cameras and translations mean then.
     blas_threads
         BLAS threads while it runs (see Notes): 1 by default, ``None`` to leave the BLAS
         library's own setting (usually all cores).
