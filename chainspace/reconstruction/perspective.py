@@ -43,8 +43,8 @@ ray-sphere intersections as its sign proposals. On CMU 35_01/35_02 (tune set, 12
 ends 51 mm off, as the weak refinement on an orthographic view does from such starts (41 mm): the
 refinement's basin is narrow and its start decides. The weak-perspective stages also suffer from
 the scale 1 / Z_k changing over a sequence (a subject walking a circle 3.5-4.7 m away: exactly
-corrected rays at the per-frame scales 50.8 mm, rescaled to one scale 22.2 mm), hence step (3)'s common scale. Depths from the weak stage's own per-frame
-camera scales were too rough for it (1-6.5 % off, no gain); from the image bone lengths
+corrected rays at the per-frame scales 50.8 mm, rescaled to one scale 22.2 mm), hence step (3)'s
+common scale. Depths from the weak stage's own per-frame camera scales were too rough for it (1-6.5 % off, no gain); from the image bone lengths
 (:func:`depth_from_bones`, 0.3-1 % off) the static-camera benchmark's tune set (CMU 35_01, 35_02;
 straight, turning, towards/away; 0 and 2 px) went from 45.5 to 37.5 mm on average (turning at 2 px
 66.9 -> 41.2 mm), the same as with the true depths (37.5 mm).
