@@ -14,40 +14,39 @@ optionally (``perspective_iter`` > 1) more passes on rays corrected as below; (4
 :func:`perspective_refine`: the full pinhole model, per frame the root position and the bones in
 camera axes, bone lengths shared by all frames, from the weak-perspective result.
 
-The correction passes (off by default, see ``reconstruct``). A weak-perspective camera on rays has the scale
-``s_k = 1 / Z_k`` (the inverse depth of the subject's centroid in frame k, per pose unit); under
-perspective a joint at depth ``Z_kj = Z_k + d_kj`` (``d_kj`` its depth relative to the centroid
-in camera axes) is seen at ``ray_kj = C_kj[:2] / Z_kj``, while the scaled orthographic view of the
-same point is ``C_kj[:2] / Z_k = ray_kj (1 + s_k d_kj)``. The correction (in the manner of POSIT,
-DeMenthon and Davis 1995) alternates: reconstruct with the weak-perspective pipeline from the
-corrected rays (at the common scale of step 3), then correct the rays with the depths of that
-reconstruction. At a fixed point with the right depths the corrected rays are exactly a scaled
-orthographic view of the motion, so the weak-perspective stages see what they see in an
-orthographic view of the same motion: with the true depths, CMU 35_01 (straight, turning,
-towards/away; 0 and 2 px) came out at 16.0-49.6 mm, the orthographic view's 17.9-46.6 mm. In
-practice one pass's depths remove about half of the perspective (RMS of the factor's error 0.021
-against the perspective's 0.037, turning walk at 2 px) and the passes do not settle: the refinement's
-start (the KCS bones lifted onto the data with Viterbi signs) changes basin with small changes of the
-rays (that walk: 38, 63, 46, 60 mm in passes 1-4, while the KCS stage stays at 46-47 mm), so passes
-help noise-free walks and hurt noisy turning ones (see ``reconstruct``). Correcting the tracks inside
-the refinement from its own bones, every sweep, drifted further (35_01 straight, 0 px: 38 -> 74 mm
-after the weak stages): a bone near the image plane turns a small change of its image length into a
-large change of its depth, so such an alternation is unstable there; the depths and the image have
-to be solved together, as :func:`perspective_refine` does per frame. Tried that way on 2026-12-06 and
-not kept (local branch ``experiment/perspective-refine``): the refinement with the perspective data
-term (given its parent's depth a bone's residual is linear in the bone, ``s x[:2] - kappa W_child x[2]
-- (W_child - W_parent)(1 + kappa d_parent)``, exact at the truth) in its Gauss-Newton step and the two
-ray-sphere intersections as its sign proposals. On CMU 35_01/35_02 (tune set, 12 runs) it ended at
-37.1 mm at 0 px (36.7 without it) and 43.2 mm at 2 px (38.3). Started from the truth it stays there
-(3.7 mm, true cameras and a prior turned to the truth); started 5 cm off (per bone coordinate) it
-ends 51 mm off, as the weak refinement on an orthographic view does from such starts (41 mm): the
-refinement's basin is narrow and its start decides. The weak-perspective stages also suffer from
-the scale 1 / Z_k changing over a sequence (a subject walking a circle 3.5-4.7 m away: exactly
-corrected rays at the per-frame scales 50.8 mm, rescaled to one scale 22.2 mm), hence step (3)'s
-common scale. Depths from the weak stage's own per-frame camera scales were too rough for it (1-6.5 % off, no gain); from the image bone lengths
-(:func:`depth_from_bones`, 0.3-1 % off) the static-camera benchmark's tune set (CMU 35_01, 35_02;
-straight, turning, towards/away; 0 and 2 px) went from 45.5 to 37.5 mm on average (turning at 2 px
-66.9 -> 41.2 mm), the same as with the true depths (37.5 mm).
+The correction passes (off by default, see ``reconstruct``). A weak-perspective camera on rays has the
+scale ``s_k = 1 / Z_k`` (the inverse depth of the subject's centroid in frame k, per pose unit); under
+perspective a joint at depth ``Z_kj = Z_k + d_kj`` (``d_kj`` its depth relative to the centroid in
+camera axes) is seen at ``ray_kj = C_kj[:2] / Z_kj``, while the scaled orthographic view of the same
+point is ``C_kj[:2] / Z_k = ray_kj (1 + s_k d_kj)``. The correction (in the manner of POSIT, DeMenthon
+and Davis 1995) alternates: reconstruct with the weak-perspective pipeline from the corrected rays (at
+the common scale of step 3), then correct the rays with the depths of that reconstruction. At a fixed
+point with the right depths the corrected rays are exactly a scaled orthographic view of the motion, so
+the weak-perspective stages see what they see in an orthographic view of the same motion: with the true
+depths, CMU 35_01 (straight, turning, towards/away; 0 and 2 px) came out at 16.0-49.6 mm, the
+orthographic view's 17.9-46.6 mm. In practice one pass's depths remove about half of the perspective
+(RMS of the factor's error 0.021 against the perspective's 0.037, turning walk at 2 px) and the passes
+do not settle: the refinement's start (the KCS bones lifted onto the data with Viterbi signs) changes
+basin with small changes of the rays (that walk: 38, 63, 46, 60 mm in passes 1-4, while the KCS stage
+stays at 46-47 mm), so passes help noise-free walks and hurt noisy turning ones (see ``reconstruct``).
+Correcting the tracks inside the refinement from its own bones, every sweep, drifted further (35_01
+straight, 0 px: 38 -> 74 mm after the weak stages): a bone near the image plane turns a small change of
+its image length into a large change of its depth, so such an alternation is unstable there; the depths
+and the image have to be solved together, as :func:`perspective_refine` does per frame. Tried that way
+on 2026-12-06 and not kept (local branch ``experiment/perspective-refine``): the refinement with the
+perspective data term (given its parent's depth a bone's residual is linear in the bone, ``s x[:2] -
+kappa W_child x[2] - (W_child - W_parent)(1 + kappa d_parent)``, exact at the truth) in its Gauss-Newton
+step and the two ray-sphere intersections as its sign proposals. On CMU 35_01/35_02 (tune set, 12 runs)
+it ended at 37.1 mm at 0 px (36.7 without it) and 43.2 mm at 2 px (38.3). Started from the truth it
+stays there (3.7 mm, true cameras and a prior turned to the truth); started 5 cm off (per bone
+coordinate) it ends 51 mm off, as the weak refinement on an orthographic view does from such starts (41
+mm): the refinement's basin is narrow and its start decides. The weak-perspective stages also suffer
+from the scale 1 / Z_k changing over a sequence (a subject walking a circle 3.5-4.7 m away: exactly
+corrected rays at the per-frame scales 50.8 mm, rescaled to one scale 22.2 mm), hence step (3)'s common
+scale. Depths from the weak stage's own per-frame camera scales were too rough for it (1-6.5 % off, no
+gain); from the image bone lengths (:func:`depth_from_bones`, 0.3-1 % off) the static-camera benchmark's
+tune set (CMU 35_01, 35_02; straight, turning, towards/away; 0 and 2 px) went from 45.5 to 37.5 mm on
+average (turning at 2 px 66.9 -> 41.2 mm), the same as with the true depths (37.5 mm).
 
 Tried and not kept (2026-12-02, CMU 35_01): a bundle adjustment of the whole sequence on the real
 camera's rays (per-frame root and bones, shared lengths, Huber data term, second differences in
