@@ -471,6 +471,11 @@ def fit_joint_angles(
         never2 = unseen2 & unseen2.all(0)
 
         timings["branch_search"] = 0.0
+        # only the starts of a perspective fit with the intrinsics known (never reported, not assessed):
+        # that fit chooses every frame's branch again under its own camera (refine_perspective's finish)
+        # and picks among exact twins itself (the wrist twins enter its candidates), so the choices below
+        # that serve a reported weak fit are cut short (docs/benchmarks.md, Robot fit speed, stop 49)
+        starts_only = _starts is not None and not _assess
 
         def branches(*args):  # _viterbi_reanchored, timed: the sequence-wide branch search's share
             t = time.perf_counter()
@@ -510,14 +515,10 @@ def fit_joint_angles(
                      (float(loss_scale_px) if loss_scale_px > 0 else None))
             delta_used[0] = delta
             out = _sequence_lm(robot, q, tracks, w2, view, free, np.ones(6, bool), max_iter, tol, delta)
-            # then the branch of every frame, chosen for the whole sequence: twice, once where this fit only
-            # starts a perspective fit with the intrinsics known (never reported, not assessed), which
-            # chooses every frame's branch again under its own camera (refine_perspective's finish). One
-            # pass there, 300 frames on one thread: UR10 28.9 -> 34.2 frames/s, milling arm 11.3 -> 14.4,
-            # xArm7 14.0 -> 17.2, the same worst joints to 0.001 degree. Not none (37.0, 14.7, 19.6): the
-            # Kinova from above (full ranges, seed 31) then started the perspective fit from a near mirror
-            # image and ended there, joint 2 off by 47 degrees and reported observable.
-            for _ in range(2 if _starts is None or _assess else 1):
+            # then the branch of every frame, chosen for the whole sequence: twice, once for starts only
+            # (with no pass there the Kinova from above, full ranges, seed 31, started the perspective fit
+            # from a near mirror image and ended there, joint 2 off by 47 degrees, reported observable)
+            for _ in range(1 if starts_only else 2):
                 sig = max(_noise_sigma(out[2], w2), px_floor)
                 q_fix, view_fix = branches(robot, out[0], tracks, w2, out[1], free, sig, c["gauge"],
                                                       per_frame, blind, unseen2)
@@ -542,7 +543,7 @@ def fit_joint_angles(
                     break  # only a better fit of the tracks, or an equal fit by a smoother path or nearer rest
                 out = new
             # free where unseen too: a branch held there could not turn with the rest of its path
-            q_rest_branch = _nearest_rest_branch(robot, out[0], free_prior)
+            q_rest_branch = out[0] if starts_only else _nearest_rest_branch(robot, out[0], free_prior)
             if q_rest_branch is not out[0]:
                 out = _sequence_lm(robot, q_rest_branch, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol,
                                    delta)
