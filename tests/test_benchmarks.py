@@ -132,8 +132,6 @@ def test_full_range_comparison_counts_both_sets_and_names_each_changed_run():
 
 
 def test_full_range_saved_runs_from_the_command_line(tmp_path, capsys):
-    import json
-
     old, new, bad = tmp_path / "old.json", tmp_path / "new.json", tmp_path / "bad.json"
     old.write_text(json.dumps([_run("a", errors=(0.5, 1.0))]))
     new.write_text(json.dumps([_run("a", errors=(0.5, 177.0))]))

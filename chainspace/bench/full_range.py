@@ -283,8 +283,8 @@ def compare_full_range(old: Sequence[dict[str, Any]], new: Sequence[dict[str, An
         no_fit = sum(r["outcome"] != "fit" for r in runs.values())
         out.append(f"| {label} | {len(runs)} | {count['ok']} | {count['flagged']} | {count['silent']} | "
                    f"{silent_runs} | {poor} | {no_fit} |")
-    changed = []
-    for k in sorted(set(sets[0]) & set(sets[1]), key=str):
+    common, changed = sorted(set(sets[0]) & set(sets[1]), key=str), []
+    for k in common:
         a, b = (_run_summary(s[k]) for s in sets)
         if a[:3] != b[:3] or abs(a[3] - b[3]) > moved_deg:
             changed.append(f"- {k[0]} {k[1]} seed {k[2]}: " + "; ".join(
@@ -292,5 +292,5 @@ def compare_full_range(old: Sequence[dict[str, Any]], new: Sequence[dict[str, An
                 for label, (o, sl, fl, w) in zip(("old", "new"), (a, b))))
     only = [f"- {k[0]} {k[1]} seed {k[2]}: only in the {label} set" for label, s, t in
             (("old", sets[0], sets[1]), ("new", sets[1], sets[0])) for k in sorted(set(s) - set(t), key=str)]
-    out += ["", f"Runs that changed ({len(changed)} of {len(set(sets[0]) & set(sets[1]))}):"] + (changed or ["- none"])
+    out += ["", f"Runs that changed ({len(changed)} of {len(common)}):"] + (changed or ["- none"])
     return "\n".join(out + ([""] + only if only else []))
