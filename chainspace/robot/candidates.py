@@ -201,11 +201,14 @@ def _depth_flips(robot: RobotKinematics, q: np.ndarray, view: _View, free: np.nd
     starts = partial + [q] * len(mirrored)
     K = len(targets)
     eye = _View.identity(K * F)
-    # 15 iterations, not 30: these are starts, solved again on the tracks (_branch_path); the rows still
-    # moving after 15 creep in a basin that leaves the targets far (a third of them, the milling arm), and
-    # their last 15 iterations were a third of the branch search (issue 19; docs/benchmarks.md, stop 50)
+    # under a weak camera 15 iterations, not 30: these are starts, solved again on the tracks (_branch_path);
+    # the rows still moving after 15 creep in basins that leave their targets far (a third of them, the
+    # milling arm), and their last 15 iterations were a tenth of its fit (issue 19; docs/benchmarks.md, Robot
+    # fit speed, stop 50). Under a pinhole camera (the perspective fit's own branch choice) 30: cut there too,
+    # the Solo12 from above (full ranges, seed 45) ended with a leg 5-34 degrees off, reported observable
+    iters = 30 if isinstance(view, _PinholeView) else 15
     qs = _sequence_lm(robot, np.concatenate(starts), np.concatenate(targets), np.ones((K * F, pos.shape[1])), eye,
-                      np.tile(free, (K, 1)), np.zeros(7, bool), 15, 1e-8, None)[0]
+                      np.tile(free, (K, 1)), np.zeros(7, bool), iters, 1e-8, None)[0]
     return list(qs.reshape(K, F, -1))
 
 
