@@ -641,7 +641,7 @@ def fit_joint_angles(
             # (the starts of a perspective fit with K known search them for every arm's motion, the side
             # it was told being no rule there: the Kinova from below, full ranges, pinhole, seed 48, told
             # "above" by default, ended with joints 2 and 3 19 and 112 degrees off, reported observable)
-            far_side = seen_from_wrong_side(r) or legs_mirror or starts_only and side_ok
+            far_side = seen_from_wrong_side(r) or legs_mirror or (starts_only and side_ok)
             if (w3 * best[2]).max() > 1e-3 * robot.reach() and far_side:
                 # X_alt is a robot's motion reflected: where the 3D fit did not reach it and r is seen
                 # from the wrong side (the mirrors of one seen from the right side lose to it), or the
