@@ -517,8 +517,9 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     # twins' own ties are _trust's, and so are the exact twins that other starts ended on: the Kinova from
     # below, full ranges, seed 44, was said to tie with its mirror image where its only unsettled
     # alternatives were its wrist's exact twins, flagged on the wrist's joints)
+    twin_of_best = _exact_twin_of(best, w)
     others = [r for r in fits if r is not best and not any(r.get(k) for k in ("window", "twin", "turn")) and
-              np.abs(_wrapped(robot, r["q"] - best["q"])).max() > 0.05 and not _exact_twin(r, best, w)]
+              np.abs(_wrapped(robot, r["q"] - best["q"])).max() > 0.05 and not twin_of_best(r)]
     best["settled"] = all(r["objective"] - best["objective"] > LR_MARGIN * var for r in others)
     best["n_alternatives"] = len(others)
     best["var"] = var
@@ -562,7 +563,7 @@ def _measured_perspective(robot: RobotKinematics, fit: dict, tracks: np.ndarray,
 def _nearest_rest_of_exact(robot: RobotKinematics, fits: list[dict], w: np.ndarray) -> dict:
     """Of the fits (ordered by objective) that are the lowest's exact twins, the nearest to rest (the tie
     policy's distance, :func:`chainspace.robot.kinematics._rest_distance`); the lowest where it has none.
-    Exact twins as :func:`_exact_twin` tells them.
+    Exact twins as :func:`_exact_twin_of` tells them.
 
     Why: exact twins (a wrist's mirror image where the tracked points beyond it lie in one plane seen
     face-on) differ in objective by rounding alone, and which one rounds lower changed with the OpenCV
@@ -572,18 +573,23 @@ def _nearest_rest_of_exact(robot: RobotKinematics, fits: list[dict], w: np.ndarr
     distinct minima can be that close (the Panda from below, full ranges, 30 frames: 0.29 variances
     apart, residuals up to 0.32 noise deviations apart), and there the lower one is the rule
     (nearest rest chose the one 31.6 mm off, against 2.2; both report the other as a tie)."""
-    return min([r for r in fits if _exact_twin(r, fits[0], w)],
+    exact = _exact_twin_of(fits[0], w)
+    return min([r for r in fits if exact(r)],
                key=lambda r: _rest_distance(robot, r["q"], r["q"][:1], r["start"]["gauge"]).mean())
 
 
-def _exact_twin(r: dict, lead: dict, w: np.ndarray) -> bool:
-    """Whether fit r is fit lead's exact twin: its objective within one noise variance of lead's, and every
-    seen point's residual within :data:`EXACT_TWIN_SIGMA` noise deviations of lead's (the tracked points in
-    the same place)."""
+def _exact_twin_of(lead: dict, w: np.ndarray):
+    """``exact(r)``: whether fit r is fit lead's exact twin: its objective within one noise variance of
+    lead's, and every seen point's residual within :data:`EXACT_TWIN_SIGMA` noise deviations of lead's (the
+    tracked points in the same place). Lead's noise is measured once, not per fit tested."""
     sigma = max(_noise_sigma(lead["rn"], w), lead["start"]["px_floor"])
     seen = (w > 0) & np.isfinite(lead["rn"])
-    return (r["objective"] - lead["objective"] <= sigma ** 2
-            and bool(np.all(np.abs(r["rn"] - lead["rn"])[seen] <= EXACT_TWIN_SIGMA * sigma)))
+
+    def exact(r: dict) -> bool:
+        return (r["objective"] - lead["objective"] <= sigma ** 2
+                and bool(np.all(np.abs(r["rn"] - lead["rn"])[seen] <= EXACT_TWIN_SIGMA * sigma)))
+
+    return exact
 
 
 def _wrist_twins_of(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.ndarray) -> list[dict]:
