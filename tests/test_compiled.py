@@ -228,3 +228,63 @@ def test_branch_steps_are_the_numpy_step_costs():
     jump = np.linalg.norm(np.where(turning, (d + np.pi) % (2 * np.pi) - np.pi, d), axis=-1)
     np.testing.assert_array_equal(out, (np.maximum(jump - 0.15, 0.0) / 0.1) ** 2)
     assert (out[0, 1] == 0.0).all() and out.max() > 100.0
+
+
+def test_tasks_come_back_in_order_and_run_on_threads_only_where_the_kinematics_are_compiled(monkeypatch):
+    import threading
+
+    robot = _robot("ur10")
+    monkeypatch.setenv("CHAINSPACE_THREADS", "2")
+    started = []
+    out = compiled.map_tasks(robot, lambda x: (x * x, threading.current_thread().name), range(6), started.append)
+    assert [o[0] for o in out] == [x * x for x in range(6)] and started == list(range(6))
+    assert all(name.startswith("chainspace-fit") for _, name in out)
+    monkeypatch.setenv("CHAINSPACE_THREADS", "1")
+    here = threading.current_thread().name
+    assert [o[1] for o in compiled.map_tasks(robot, lambda x: (x, threading.current_thread().name), range(3))] == \
+        [here] * 3
+    monkeypatch.setenv("CHAINSPACE_THREADS", "2")
+    robot._compiled = None  # kinematics looped over Pinocchio's one data: never on two threads
+    assert [o[1] for o in compiled.map_tasks(robot, lambda x: (x, threading.current_thread().name), range(3))] == \
+        [here] * 3
+
+
+@pytest.mark.parametrize("camera", ["static", "pinhole"])
+def test_a_robot_fit_on_two_threads_gives_the_numbers_of_one(monkeypatch, camera):
+    # the fits tried from several starts run two at a time (compiled.map_tasks): each gives its own
+    # numbers, and the choices among them are made in the order of the starts as on one thread
+    import warnings
+
+    from chainspace.reconstruction.pipeline import reconstruct
+    from chainspace.robot.fit import fit_joint_angles
+    from chainspace.synthetic.robot import synthesize
+
+    chain = robot_chain("milling arm")
+    trial = synthesize(chain, n_frames=30, noise_px=1.0, seed=3, **({"camera": "static"} if camera == "static" else {}))
+    rec = reconstruct(trial.tracks, chain, seed=3)
+    fits = []
+    monkeypatch.setattr(compiled, "_task_pools", {})  # the pools this test's fits make
+    for n in ("1", "2"):
+        monkeypatch.setenv("CHAINSPACE_THREADS", n)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            fits.append(fit_joint_angles(rec, camera="static", intrinsics=trial.intrinsics))
+    assert any(key[1] == 2 for key in compiled._task_pools)  # the second fit did run on two threads
+    a, b = fits
+    np.testing.assert_array_equal(a.q, b.q)
+    np.testing.assert_array_equal(a.q_std, b.q_std)
+    assert a.message == b.message and a.n_iter == b.n_iter and len(a.alternatives) == len(b.alternatives)
+
+
+def test_tasks_mapped_inside_a_task_run_on_its_thread(monkeypatch):
+    # a task that maps tasks itself must not wait on the pool it runs in (two such tasks would wait for ever)
+    import threading
+
+    robot = _robot("ur10")
+    monkeypatch.setenv("CHAINSPACE_THREADS", "2")
+
+    def outer(x):
+        mine = threading.current_thread().name
+        return [name == mine for name in compiled.map_tasks(robot, lambda y: threading.current_thread().name, range(3))]
+
+    assert compiled.map_tasks(robot, outer, range(4)) == [[True] * 3] * 4

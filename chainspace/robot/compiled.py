@@ -23,14 +23,18 @@ seen through a weak-perspective or 3D view (:class:`chainspace.robot.views._View
 imported, stays with the numpy solver.
 
 Compiled on first use and cached on disk (numba's ``cache=True``): the first fit after an install spends
-some seconds compiling. ``CHAINSPACE_THREADS`` sets the number of threads (default: the usable cores).
+some seconds compiling. ``CHAINSPACE_THREADS`` sets the number of threads (default: the usable cores):
+a solve's rows are shared among them (:func:`run_rows`), and so are the independent fits that a robot fit
+tries from its several starts (:func:`imap_tasks`), each with the numbers it gives on one thread.
 """
 
 from __future__ import annotations
 
 import functools
 import os
+import threading
 import warnings
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -943,6 +947,43 @@ def run_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, 
             for a, b in zip(cuts[:-1], cuts[1:])]
     for job in jobs:
         job.result()
+
+
+_task_pools: dict[tuple[int, int], ThreadPoolExecutor] = {}
+_TASK_THREAD = "chainspace-fit"
+
+
+def imap_tasks(robot, fn: Callable, items, step: Callable[[int], None] | None = None) -> Iterator:
+    """The results of ``fn(x)`` for each of ``items``, in order, the calls shared among :func:`threads` threads
+    where ``robot``'s kinematics are compiled (:meth:`CompiledModel.of`: batched, no Pinocchio data shared
+    among the calls); each call's numbers are what it gives alone. On one thread each call is made as its
+    result is asked for, so a caller can tell the next call what the last ones found. ``step(i)``
+    (progress) is called in this thread as call i is waited for.
+
+    Why: the fits that a robot fit tries from several starts are independent, and each spends its time in
+    the compiled solvers, which release the GIL; a sequence fit with its camera (:func:`lm_shared`) runs on
+    one thread, so on two cores two such fits run at once (issue 19). A pool of its own: its calls wait on
+    :func:`run_rows`'s pool, which must not be the pool they run in; a call that maps tasks itself maps
+    them on its own thread (waiting on the pool it runs in could wait for ever)."""
+    items = list(items)
+    n = min(threads(), len(items))
+    step = step or (lambda i: None)
+    if n <= 1 or CompiledModel.of(robot) is None or threading.current_thread().name.startswith(_TASK_THREAD):
+        for i, x in enumerate(items):
+            step(i)
+            yield fn(x)
+        return
+    key = (os.getpid(), n)
+    pool = _task_pools.get(key) or _task_pools.setdefault(key, ThreadPoolExecutor(n, thread_name_prefix=_TASK_THREAD))
+    jobs = [pool.submit(fn, x) for x in items]
+    for i, job in enumerate(jobs):
+        step(i)
+        yield job.result()
+
+
+def map_tasks(robot, fn: Callable, items, step: Callable[[int], None] | None = None) -> list:
+    """``[fn(x) for x in items]`` as :func:`imap_tasks` makes them."""
+    return list(imap_tasks(robot, fn, items, step))
 
 
 @functools.cache

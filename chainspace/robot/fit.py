@@ -188,6 +188,7 @@ base frame to the image.
 
 from __future__ import annotations
 
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -200,6 +201,7 @@ from ..progress import stage, stage_steps
 from .kinematics import RobotKinematics, _rest_distance, _roughness
 from .result import JointFit
 from .views import _affine_camera, _align, _camera_view, _looks_down, similarity_align
+from .compiled import imap_tasks
 from .solver import _huber, _motion_prior, _noise_sigma, _rms_per_frame, _robust_scale, _sequence_lm
 from .starts import _fit_3d, _initial_camera, _sequential_ik
 from .observability import _fill_unseen, _gauge_directions, _hold, _notes, _structural, _unseen, _weights
@@ -477,22 +479,23 @@ def fit_joint_angles(
         # that serve a reported weak fit are cut short (docs/benchmarks.md, Robot fit speed, stop 49)
         starts_only = _starts is not None and not _assess
 
+        timed = threading.Lock()  # refine_2d runs on several threads (imap_tasks)
+
         def branches(*args):  # _viterbi_reanchored, timed: the sequence-wide branch search's share
             t = time.perf_counter()
             out = _viterbi_reanchored(*args)
-            timings["branch_search"] += time.perf_counter() - t
+            with timed:
+                timings["branch_search"] += time.perf_counter() - t
             return out
 
-        def robust_cost(rn):
-            return float((w2 * _huber(rn, delta_used[0])[0]).sum())
+        def robust_cost(rn, delta):
+            return float((w2 * _huber(rn, delta)[0]).sum())
 
-        delta_used = [None]
-
-        def refine_2d(c, known=()):
-            # None when the branch search puts the motion on a fit in ``known``, refined before: both
-            # mirror starts of an arm whose mirror image is no pose of it end on one motion, which
-            # would be refined, searched and smoothed twice
-            nonlocal n_iter
+        def refine_2d(c, known):
+            # the refined fit of candidate c, with the motion that each round of the branch search put it
+            # on and the iterations spent up to there (``fixes``: see ``refined``), and its own iterations;
+            # only those where a round puts it on a fit in ``known`` (refined before it: it is dropped)
+            n_iter, fixes = 0, []
             P0, _ = _affine_camera(c["pos"], tracks, w2, per_frame)
             pos, jac = robot.jacobians(c["q"])
             g2 = (_gauge_directions(pos, jac, w2, P0, per_frame) | c["gauge"]) & ~blind
@@ -513,7 +516,6 @@ def fit_joint_angles(
             rn0 = np.linalg.norm(view.apply(pos)[0] - np.nan_to_num(tracks), axis=-1)
             delta = (_robust_scale(rn0, w2, px_floor) if loss_scale_px is None else
                      (float(loss_scale_px) if loss_scale_px > 0 else None))
-            delta_used[0] = delta
             out = _sequence_lm(robot, q, tracks, w2, view, free, np.ones(6, bool), max_iter, tol, delta)
             # then the branch of every frame, chosen for the whole sequence: twice, once for starts only
             # (with no pass there the Kinova from above, full ranges, seed 31, started the perspective fit
@@ -522,18 +524,18 @@ def fit_joint_angles(
                 sig = max(_noise_sigma(out[2], w2), px_floor)
                 q_fix, view_fix = branches(robot, out[0], tracks, w2, out[1], free, sig, c["gauge"],
                                                       per_frame, blind, unseen2)
+                fixes.append((q_fix, n_iter + out[-1]))
                 if any(_same_motion(robot, q_fix, k["q"]) for k in known):
-                    n_iter += out[-1]
-                    return None
+                    return dict(fixes=fixes)
                 if _same_motion(robot, q_fix, out[0]):
                     break
                 new = _sequence_lm(robot, q_fix, tracks, w2, view_fix, free, np.ones(6, bool), max_iter, tol, delta)
                 worst_old = np.nanmax(_rms_per_frame(out[2], w2))
-                better = robust_cost(new[2]) <= 0.99 * robust_cost(out[2]) and \
+                better = robust_cost(new[2], delta) <= 0.99 * robust_cost(out[2], delta) and \
                     np.nanmax(_rms_per_frame(new[2], w2)) <= 1.1 * worst_old + px_floor
                 # a tie of the tracks (a wrist whose tracked points lie in one plane, mirrored in depth):
                 # the continuous path wins, and of two alike continuous ones the one nearer the rest pose
-                tie = robust_cost(new[2]) <= 1.05 * robust_cost(out[2])
+                tie = robust_cost(new[2], delta) <= 1.05 * robust_cost(out[2], delta)
                 rough_new, rough_old = _roughness(robot, new[0]), _roughness(robot, out[0])
                 smoother = rough_new < 0.5 * rough_old and rough_old - rough_new > 1.0  # a jump gone
                 nearer = rough_new <= 1.5 * rough_old + 1.0 and \
@@ -547,10 +549,10 @@ def fit_joint_angles(
             if q_rest_branch is not out[0]:
                 out = _sequence_lm(robot, q_rest_branch, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol,
                                    delta)
-            n_iter += out[-1]
             return dict(cost=float(np.sqrt((w2 * out[2] ** 2).sum() / w2.sum())), sse=float((w2 * out[2] ** 2).sum()),
                         n_obs=2 * int((w2 > 0).sum()), out=out, c=c, g2=g2,
-                        q=out[0], gauge=g2, down=_looks_down(out[1]), free=free, free_prior=free_prior, delta=delta)
+                        q=out[0], gauge=g2, down=_looks_down(out[1]), free=free, free_prior=free_prior, delta=delta,
+                        fixes=fixes, n_iter=n_iter + out[-1])
 
         side_ok, side_why = view_side_valid(robot)  # legs hanging below their base: the camera side decides nothing
         base_mirror = _base_keeping_mirror(robot, (w2 > 0).any(0))
@@ -563,20 +565,27 @@ def fit_joint_angles(
             return side_ok and view_from is not None and (r["down"] < -0.02 if view_from == "above" else
                                                           r["down"] > 0.02)
 
-        def refined(starts, known=()):  # the fits of those starts that are new motions
+        def refined(starts, known=(), step=None):
+            # the fits of those starts that are new motions, in order: a start is dropped where a round of
+            # its branch search puts it on a fit in ``known`` or refined before it (both mirror starts of an
+            # arm whose mirror image is no pose of it end on one motion, which would be refined, searched and
+            # smoothed twice). On several threads a start is refined while those before it may still run, so
+            # it stops early only on the ones it sees done (``seen``) and is dropped here as if refined after
+            # them all: the same fits and counts as on one thread
+            nonlocal n_iter
             new: list[dict] = []
-            for c in starts:
-                r = refine_2d(c, list(known) + new)
-                if r is not None:
+            seen = list(known)
+            for r in imap_tasks(robot, lambda c: refine_2d(c, seen), starts, step):
+                dropped_at = next((it for q_fix, it in r["fixes"] if any(_same_motion(robot, q_fix, k["q"])
+                                                                         for k in seen)), None)
+                n_iter += r["n_iter"] if dropped_at is None else dropped_at
+                if dropped_at is None:
                     new.append(r)
+                    seen.append(r)
             return new
 
         # both mirror images: a poor reconstruction may favour the wrong one in 3D
-        step = stage_steps("robot fit: refining on the tracks, candidate", len(candidates))
-        results = []
-        for k, c in enumerate(candidates):
-            step(k)
-            results += refined([c], results)
+        results = refined(candidates, step=stage_steps("robot fit: refining on the tracks, candidate", len(candidates)))
         if not per_frame and transform == "similarity" and min(r["cost"] for r in results) > 3 * px_floor:
             # the tracks are fitted poorly from the reconstruction's start: also a camera found from the
             # tracks alone (costly, so only then)

@@ -30,6 +30,7 @@ import numpy as np
 from ..progress import stage, stage_steps
 from .kinematics import RobotKinematics, _rest_distance, _wrapped
 from .observability import _hold, _structural
+from .compiled import map_tasks
 from .solver import _huber, _motion_prior, _noise_sigma, _normal_equations, _sequence_lm, _smooth_lm, \
     _smoothed_objective
 from .views import _PinholeView, _camera_view, _pinhole_from_weak
@@ -434,37 +435,42 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
 
     early = fit_focal and weak_fits  # the first start may settle that there is no perspective (docstring)
     step = stage_steps("robot fit, perspective: the camera from start", len(starts))
-    screened, chosen_f, first = [], None, []
-    for k, st in enumerate(starts):  # the first over the focal guesses, the others at its focal
-        step(k)
-        screened.append(camera_start(st, f_inits if k == 0 else [chosen_f or f_inits[0]]))
-        if k == 0 and fit_focal:
-            chosen_f = screened[0][3]
-        if k == 0 and early:
-            first = refine_in_full(0)
-            lead = min(first, key=lambda r: r["objective"])
-            measured = _measured_perspective(robot, lead, tr, w, weak_sse, n_obs, fit_centre)
-            if not measured["measured"]:
-                return dict(lead, **measured)
+    step(0)
+    screened, first = [camera_start(starts[0], f_inits)], []  # the first over the focal guesses
+    chosen_f = screened[0][3] if fit_focal else f_inits[0]
+    if early:
+        first = refine_in_full(0)
+        lead = min(first, key=lambda r: r["objective"])
+        measured = _measured_perspective(robot, lead, tr, w, weak_sse, n_obs, fit_centre)
+        if not measured["measured"]:
+            return dict(lead, **measured)
+    # the others at its focal
+    screened += map_tasks(robot, lambda st: camera_start(st, [chosen_f]), starts[1:], lambda i: step(i + 1))
     # the turned starts compete for a slot of their own: on the xArm7 from below (full ranges, seed 0) one of
     # lower camera-stage cost pushed the true basin's start out, and the fit ended 151 degrees off
     by_cost = sorted(range(1, len(starts)), key=lambda k: screened[k][0])
     keep = [0] + [k for k in by_cost if k < len(given)][:MAX_STARTS - 1] + [k for k in by_cost if k >= len(given)][:1]
     step = stage_steps("robot fit, perspective: refining in full, start", len(keep))
-    for i, k in enumerate(keep):
-        step(i)
-        fits += first if k == 0 and early else refine_in_full(k)
+    for r in map_tasks(robot, lambda k: first if k == 0 and early else refine_in_full(k), keep, step):
+        fits += r
     contend([])
     # six searches, each a step of the stage's log (a count and the time left: 3.5 s in the demo at 300 frames)
     other = stage_steps("robot fit, perspective: other minima (a searched camera, grafts, twins, turns about the "
                         "base's line, windows, turned joints), search", 6)
     other(0)
-    searched = _searched_start(robot, fits[0], tr, w, starts[0], K, n_obs, weak_sse)
-    if searched is not None:  # one more contender, on the objective like the others
-        contend(finish(*searched, starts[0], 0))
+    lead, refits = fits[0], {}
+
+    def searched_fits():
+        searched = _searched_start(robot, lead, tr, w, starts[0], K, n_obs, weak_sse)
+        return [] if searched is None else finish(*searched, starts[0], 0)
+
+    # the searched start and the grafts onto the winner as it stands, at once: the searched start seldom
+    # wins, and where it does not, the grafts refitted meanwhile are those wanted then too (``refits``)
+    contend(map_tasks(robot, lambda task: task(), [searched_fits, lambda: _grafted(
+        robot, lead, given + [r["q"] for r in fits[1:]], tr, w, refits)])[0])  # one more contender (or none)
     # (the given starts only: a turned start's tails beyond the first joint are its original's)
     other(1)
-    grafted = _grafted(robot, fits[0], given + [r["q"] for r in fits[1:]], tr, w)
+    grafted = _grafted(robot, fits[0], given + [r["q"] for r in fits[1:]], tr, w, refits if fits[0] is lead else {})
     if grafted is not None:
         contend(finish(grafted, fits[0]["view"], fits[0]["start"], 0))
     # the winner's mirror image, facing the camera as it does, and the winner turned about the first joint's
@@ -491,9 +497,9 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     # only by whether the robot can make the turned motion, and no start need lie in the basin it leads to
     other(3)
     lead = fits[0]
-    for q_s, v_s in _static_line_starts(robot, dict(lead, gauge=lead["start"]["gauge"], var=_noise_variance(lead, w)),
-                                        tr, w, TIE_VARIANCES):
-        contend(finish(q_s, v_s, lead["start"], 0))
+    for r in map_tasks(robot, lambda s: finish(*s, lead["start"], 0), _static_line_starts(
+            robot, dict(lead, gauge=lead["start"]["gauge"], var=_noise_variance(lead, w)), tr, w, TIE_VARIANCES)):
+        contend(r)
     # the winner's path moved on windows along what the tracks fix least: minima that differ from it on a
     # window only, which no whole-sequence candidate is (a tie then reported, or a lower one the winner)
     other(4)
@@ -634,10 +640,11 @@ def _trust(robot: RobotKinematics, best: dict, fits: list[dict], tracks: np.ndar
 
 
 def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], tracks: np.ndarray,
-             w: np.ndarray) -> np.ndarray | None:
+             w: np.ndarray, refits: dict | None = None) -> np.ndarray | None:
     """The winner's joints up to k with another start's joints from k on (every k, every other start),
     refitted from the winner's camera: q (F, nq) of the lowest robust objective if it is below the
-    winner's own refitted one, else None.
+    winner's own refitted one, else None. ``refits``: the refits of this winner made so far, by graft,
+    reused and added to (a dict kept between calls for one winner).
 
     Why: each start is fitted under its own camera, and a start whose arm is off (the weak fit's camera
     placed for another branch) ends in a poor minimum even when its wrist is on the right side of the
@@ -653,9 +660,8 @@ def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], track
         out = _sequence_lm(robot, q, tracks, w, view, free, ones, 30, 1e-8, delta)
         return out[0], _robust(out[2], w, delta)
 
-    base = refit(best["q"])[1]
-    winner = None
     a_best = robot.angles(best["q"])
+    grafts = []
     for q in others:
         a = robot.angles(q)
         d = robot.wrap_angles(a - a_best)
@@ -664,9 +670,15 @@ def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], track
                 break  # the same tail from here on: nothing new for this or larger k
             a0 = a_best.copy()
             a0[:, k:] = a[:, k:]
-            q1, obj = refit(robot.from_angles(a0))
-            if obj < base - 1e-3 * abs(base):  # not a rounding-level tie
-                base, winner = obj, q1
+            grafts.append(robot.from_angles(a0))
+    refits = {} if refits is None else refits
+    todo = {q.tobytes(): q for q in [best["q"]] + grafts if q.tobytes() not in refits}
+    refits.update(zip(todo, map_tasks(robot, refit, todo.values())))
+    (_, base), *refitted = [refits[q.tobytes()] for q in [best["q"]] + grafts]
+    winner = None
+    for q1, obj in refitted:
+        if obj < base - 1e-3 * abs(base):  # not a rounding-level tie
+            base, winner = obj, q1
     return winner
 
 
@@ -735,14 +747,13 @@ def _weak_windows(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.
     windows = [(a, min(a + size, F)) for a in range(0, max(F - size // 2, 1), size // 2)]
     windows = [(a, b) for a, b in windows if loose[a:b].mean() > 0.5]
     windows = sorted(windows, key=lambda ab: -np.median(sd[ab[0]:ab[1]]))  # the loosest first
-    out = []
+    moved = []
     for a, b in windows[:WEAK_MAX_WINDOWS]:
         taper = np.zeros(F)
         taper[a:b] = np.sin(np.pi * (np.arange(a, b) - a + 0.5) / (b - a)) ** 2
         for sign in (1.0, -1.0):
-            q0 = robot.integrate(q, sign * np.radians(SHAKE_DEG) * taper[:, None] * d, clip=True)
-            out.append(_smoothed_refit(robot, lead, q0, tracks, w, 100, 1e-10, window=(a, b)))
-    return out
+            moved.append(((a, b), robot.integrate(q, sign * np.radians(SHAKE_DEG) * taper[:, None] * d, clip=True)))
+    return map_tasks(robot, lambda m: _smoothed_refit(robot, lead, m[1], tracks, w, 100, 1e-10, window=m[0]), moved)
 
 
 def _smoothed_refit(robot: RobotKinematics, lead: dict, q0: np.ndarray, tracks: np.ndarray, w: np.ndarray,
@@ -796,11 +807,13 @@ def _loose_turns(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.n
         return []
     steps = np.radians(TURN_STEP_DEG) * np.arange(1, int(round(360.0 / TURN_STEP_DEG)))
     grids = np.stack(np.meshgrid(*[np.r_[0.0, steps]] * len(loose), indexing="ij"), -1).reshape(-1, len(loose))[1:]
-    brief = []
-    for turn in grids:
+
+    def turned(turn):
         dv = np.zeros((len(q), robot.nv))
         dv[:, loose] = turn
-        brief.append((_smoothed_refit(robot, lead, robot.integrate(q, dv, clip=True), tracks, w, 20, 1e-6), turn))
+        return _smoothed_refit(robot, lead, robot.integrate(q, dv, clip=True), tracks, w, 20, 1e-6), turn
+
+    brief = map_tasks(robot, turned, grids)
     kept: list[tuple] = []
     for r, turn in sorted(brief, key=lambda b: b[0]["objective"]):
         if len(kept) == TURN_REFITS:
@@ -808,5 +821,6 @@ def _loose_turns(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.n
         if not any(_same_motion(robot, r["q"], k[0]["q"]) for k in kept) and not _same_motion(robot, r["q"], q):
             kept.append((r, turn))
     names = [robot.joint_names[v] for v in loose]
-    return [_smoothed_refit(robot, lead, r["q"], tracks, w, 100, 1e-10,
-                            turn=dict(zip(names, np.degrees(turn).round(1).tolist()))) for r, turn in kept]
+    return map_tasks(robot, lambda k: _smoothed_refit(robot, lead, k[0]["q"], tracks, w, 100, 1e-10,
+                                                      turn=dict(zip(names, np.degrees(k[1]).round(1).tolist()))),
+                     kept)

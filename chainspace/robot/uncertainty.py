@@ -36,6 +36,7 @@ from typing import Callable
 import numpy as np
 
 from ..metrics import procrustes_align
+from .compiled import map_tasks
 from .kinematics import RobotKinematics
 from .solver import _huber, _noise_sigma, _normal_equations
 from .views import similarity_align
@@ -522,7 +523,8 @@ def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float,
                 if not distinct:
                     return []
             ones = np.ones(view.n_params, bool)
-            fits = [_smooth_lm(robot, m, tracks, w, view, free, ones, 20, 1e-8, delta, prior) for m in distinct]
+            fits = map_tasks(robot, lambda m: _smooth_lm(robot, m, tracks, w, view, free, ones, 20, 1e-8, delta, prior),
+                             distinct)
             qs, rn = np.stack([f[0] for f in fits]), np.stack([f[2] for f in fits])
         return [(score(qs[k], rn[k]), {"q": qs[k]}) for k in range(len(qs))]
 
@@ -675,19 +677,21 @@ def _shake_fits(robot: RobotKinematics, q: np.ndarray, view, problem: "_Samples"
     tracks, w, free = problem.tracks, problem.w, problem.free
     weak = isinstance(view, _View)
     ones = np.ones(view.n_params, bool)
-    out = []
-    for k in np.flatnonzero(free.any(0) & shake):
-        half = (SHAKE_TURN_DEG,) if robot.turns_v[k] else ()
-        for shift in (SHAKE_DEG, -SHAKE_DEG, SHAKE_FAR_DEG, -SHAKE_FAR_DEG) + half:
-            dv = np.zeros((len(q), robot.nv))
-            dv[:, k] = np.radians(shift)
-            q0 = robot.integrate(q, dv * free, clip=True)
-            if weak:
-                v0 = _camera_view(robot.positions(q0), tracks, w, False)
-            else:  # the pinhole camera alone, from the winner's, to the shifted motion
-                v0 = _sequence_lm(robot, q0, tracks, w, view, np.zeros_like(free), ones, 30, 1e-10, problem.delta)[1]
-            out.append(problem.fit(q0, v0))
-    return out
+
+    def shaken(k_shift):
+        k, shift = k_shift
+        dv = np.zeros((len(q), robot.nv))
+        dv[:, k] = np.radians(shift)
+        q0 = robot.integrate(q, dv * free, clip=True)
+        if weak:
+            v0 = _camera_view(robot.positions(q0), tracks, w, False)
+        else:  # the pinhole camera alone, from the winner's, to the shifted motion
+            v0 = _sequence_lm(robot, q0, tracks, w, view, np.zeros_like(free), ones, 30, 1e-10, problem.delta)[1]
+        return problem.fit(q0, v0)
+
+    shifts = [(k, shift) for k in np.flatnonzero(free.any(0) & shake) for shift in
+              (SHAKE_DEG, -SHAKE_DEG, SHAKE_FAR_DEG, -SHAKE_FAR_DEG) + ((SHAKE_TURN_DEG,) if robot.turns_v[k] else ())]
+    return map_tasks(robot, shaken, shifts)
 
 
 def _sample_step(n_frames: int) -> int:
@@ -779,7 +783,8 @@ def _tied_on_samples(robot: RobotKinematics, winner: dict, motions: list[np.ndar
     samples = _Samples(robot, tracks, w, prior, free, step, winner["delta"], n_iter=20)
     _, bar = samples.bar(winner, var)
     view = winner["out"][1].take(samples.sub)
-    return [m for m in motions if samples.objective(samples.fit(m[samples.sub], view)) <= bar]
+    objectives = map_tasks(robot, lambda m: samples.objective(samples.fit(m[samples.sub], view)), motions)
+    return [m for m, objective in zip(motions, objectives) if objective <= bar]
 
 
 def _sampled_shakes(robot: RobotKinematics, base: dict, winner: dict, scored: list[tuple[float, dict]],
@@ -811,14 +816,15 @@ def _sampled_shakes(robot: RobotKinematics, base: dict, winner: dict, scored: li
         objective = samples.objective(r)
         if objective <= bar and new(r) and not any(_same_motion(robot, r[0], t[1][0]) for t in tied):
             tied.append((objective, r))
-    out = []
     full = _Samples(robot, tracks, w, prior, free, 1, base["delta"])  # every frame, the prior itself
-    for _, r in sorted(tied, key=lambda t: t[0])[:SHAKE_REFITS]:
+
+    def carried(r):
         d = robot.wrap_angles(robot.angles(r[0]) - robot.angles(q[sub]))
         dv = np.stack([np.interp(np.arange(F), sub, d[:, k]) for k in range(robot.nv)], 1)
         # the one static camera of the sampled refit, for every frame
-        out.append(full.fit(robot.integrate(q, dv * free, clip=True), r[1].take(np.zeros(F, int))))
-    return out
+        return full.fit(robot.integrate(q, dv * free, clip=True), r[1].take(np.zeros(F, int)))
+
+    return map_tasks(robot, carried, [r for _, r in sorted(tied, key=lambda t: t[0])[:SHAKE_REFITS]])
 
 
 def _runners_up(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict]], n: int) -> list[dict]:
