@@ -9,6 +9,7 @@ import numpy as np
 
 from ..progress import stage_steps
 from .kinematics import RobotKinematics, _roughness
+from .compiled import imap_tasks, map_tasks
 from .views import _View, _looks_down
 from .solver import _smooth_lm, _smoothed_objective
 from .candidates import TIE_VARIANCES, _LONG_GAP, _across_long_gaps, _same_motion, _turned_views
@@ -82,47 +83,63 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
     n_iter = 0
 
     def smoothed(r, q, view):
-        nonlocal n_iter
         out = _smooth_lm(robot, robot.continuous(q), tracks, w, view, r["free_prior"], np.ones(6, bool), max_iter,
                          tol, delta, prior)
-        n_iter += out[5]
         return _smoothed_objective(prior, robot.angles(out[0]), out[2], w, delta), out
 
-    def score(r, q, view):
+    def known(q):
+        return any(_same_motion(robot, q, o["q"]) for _, o in scored)
+
+    def scoring(r, q, view, new_start):
+        """(first, objective, out, iterations): r smoothed from (q, view) (``first``: its out), then (when
+        that is no motion scored already) smoothed again while a new branch choice lowers its objective;
+        None where ``new_start`` and q is a motion scored already."""
+        if new_start and known(q):
+            return None
         objective, out = smoothed(r, q, view)
+        first, n = out, out[5]
         if known(out[0]):
-            # smoothed back onto a motion already scored, whose branches were searched then: the
-            # search would find what it found before, and the motion keeps its place in the order
-            return
+            return first, objective, out, n
         for _ in range(2):  # the smoothed motion may still jump branches that a local step cannot undo
             q_b, view_b = rebranch(r, out)
             if _same_motion(robot, q_b, out[0]):
                 break
             objective_b, out_b = smoothed(r, q_b, view_b)
+            n += out_b[5]
             if objective_b >= (1 - 1e-3) * objective:
                 break
             objective, out = objective_b, out_b
-        if not known(out[0]):  # else a motion met before, which keeps its place in the order
-            scored.append((objective, dict(r, out=out, q=out[0], down=_looks_down(out[1]))))
+        return first, objective, out, n
 
-    def known(q):
-        return any(_same_motion(robot, q, o["q"]) for _, o in scored)
+    def score_in_order(tries, new_starts=False, step=None):
+        """Score each (r, q, view) of ``tries``: on several threads at once (each scoring sees the scores
+        taken before it that are done: imap_tasks), taken here in order as if one after the other. With
+        ``new_starts`` a start that is a motion scored before is not scored; a first smoothed fit that is
+        one is dropped (the iterations after it not counted); a scored one whose final motion was scored
+        before keeps that one's place in the order."""
+        nonlocal n_iter
+        tries = list(tries)
+        for (r, q, _), done in zip(tries, imap_tasks(robot, lambda t: scoring(*t, new_starts), tries, step)):
+            if done is None or new_starts and known(q):
+                continue
+            first, objective, out, n = done
+            if known(first[0]):
+                n_iter += first[5]
+                continue
+            n_iter += n
+            if not known(out[0]):
+                scored.append((objective, dict(r, out=out, q=out[0], down=_looks_down(out[1]))))
 
-    step = stage_steps("robot fit: the motion prior, scoring fit", len(results))  # 14 s for a UR5's four
-    for k, r in enumerate(results):
-        step(k)
-        near = r["sse"] <= 1.1 * best_sse + TIE_VARIANCES * sigma ** 2
-        if near and not known(r["q"]):
-            score(r, r["out"][0], r["out"][1])  # else a poor fit of the tracks, or one already scored
+    # the fits near the best on the tracks (a poor fit of the tracks is not scored)
+    near = [(r, r["out"][0], r["out"][1]) for r in results if r["sse"] <= 1.1 * best_sse + TIE_VARIANCES * sigma ** 2]
+    score_in_order(near, True, stage_steps("robot fit: the motion prior, scoring fit", len(near)))  # a UR5's four: 14 s
     best, r = min(scored, key=lambda sr: sr[0])
-    for view_t in _turned_views(robot, r["q"], r["out"][1], r["gauge"]):
-        score(r, r["q"], view_t)
+    score_in_order([(r, r["q"], view_t) for view_t in _turned_views(robot, r["q"], r["out"][1], r["gauge"])])
     best, r = min(scored, key=lambda sr: sr[0])
-    # a joint seen again after a long gap: the bridges to its other branches that score alike (the
-    # acceleration prior charges nothing for a straight ramp), the one that moves least wins
     least = (_roughness(robot, r["q"]), best, r)
-    for q_b in _across_long_gaps(robot, r["q"], tracks, w, r["out"][1], r["free"], sigma, _LONG_GAP):
-        objective, out = smoothed(r, q_b, r["out"][1])
+    gaps = _across_long_gaps(robot, r["q"], tracks, w, r["out"][1], r["free"], sigma, _LONG_GAP)
+    for objective, out in map_tasks(robot, lambda q_b: smoothed(r, q_b, r["out"][1]), gaps):
+        n_iter += out[5]
         moved = _roughness(robot, out[0])
         if objective <= best + TIE_VARIANCES * sigma ** 2 and moved < least[0]:
             least = (moved, objective, dict(r, out=out, q=out[0], down=_looks_down(out[1])))
@@ -131,7 +148,7 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
         r = least[2]
     if wrong_side(r) or reflect_always:
         start = reflected(r)
-        score(start, start["q"], start["view"])
+        score_in_order([(start, start["q"], start["view"])])
     lowest = min(sr[0] for sr in scored)
     tied = [r for sr, r in scored if sr - lowest <= TIE_VARIANCES * sigma ** 2]
     if scored_out is not None:
