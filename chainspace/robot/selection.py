@@ -99,6 +99,8 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
         objective, out = smoothed(r, q, view)
         first, n = out, out[5]
         if known(out[0]):
+            # smoothed back onto a motion already scored, whose branches were searched then: the
+            # search would find what it found before, and the motion keeps its place in the order
             return first, objective, out, n
         for _ in range(2):  # the smoothed motion may still jump branches that a local step cannot undo
             q_b, view_b = rebranch(r, out)
@@ -127,7 +129,7 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
                 n_iter += first[5]
                 continue
             n_iter += n
-            if not known(out[0]):
+            if not known(out[0]):  # else a motion met before, which keeps its place in the order
                 scored.append((objective, dict(r, out=out, q=out[0], down=_looks_down(out[1]))))
 
     # the fits near the best on the tracks (a poor fit of the tracks is not scored)
@@ -136,6 +138,8 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
     best, r = min(scored, key=lambda sr: sr[0])
     score_in_order([(r, r["q"], view_t) for view_t in _turned_views(robot, r["q"], r["out"][1], r["gauge"])])
     best, r = min(scored, key=lambda sr: sr[0])
+    # a joint seen again after a long gap: the bridges to its other branches that score alike (the
+    # acceleration prior charges nothing for a straight ramp), the one that moves least wins
     least = (_roughness(robot, r["q"]), best, r)
     gaps = _across_long_gaps(robot, r["q"], tracks, w, r["out"][1], r["free"], sigma, _LONG_GAP)
     for objective, out in map_tasks(robot, lambda q_b: smoothed(r, q_b, r["out"][1]), gaps):
