@@ -458,19 +458,12 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     other = stage_steps("robot fit, perspective: other minima (a searched camera, grafts, twins, turns about the "
                         "base's line, windows, turned joints), search", 6)
     other(0)
-    lead, refits = fits[0], {}
-
-    def searched_fits():
-        searched = _searched_start(robot, lead, tr, w, starts[0], K, n_obs, weak_sse)
-        return [] if searched is None else finish(*searched, starts[0], 0)
-
-    # the searched start and the grafts onto the winner as it stands, at once: the searched start seldom
-    # wins, and where it does not, the grafts refitted meanwhile are those wanted then too (``refits``)
-    contend(map_tasks(robot, lambda task: task(), [searched_fits, lambda: _grafted(
-        robot, lead, given + [r["q"] for r in fits[1:]], tr, w, refits)])[0])  # one more contender (or none)
+    searched = _searched_start(robot, fits[0], tr, w, starts[0], K, n_obs, weak_sse)
+    if searched is not None:  # one more contender, on the objective like the others
+        contend(finish(*searched, starts[0], 0))
     # (the given starts only: a turned start's tails beyond the first joint are its original's)
     other(1)
-    grafted = _grafted(robot, fits[0], given + [r["q"] for r in fits[1:]], tr, w, refits if fits[0] is lead else {})
+    grafted = _grafted(robot, fits[0], given + [r["q"] for r in fits[1:]], tr, w)
     if grafted is not None:
         contend(finish(grafted, fits[0]["view"], fits[0]["start"], 0))
     # the winner's mirror image, facing the camera as it does, and the winner turned about the first joint's
@@ -640,11 +633,10 @@ def _trust(robot: RobotKinematics, best: dict, fits: list[dict], tracks: np.ndar
 
 
 def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], tracks: np.ndarray,
-             w: np.ndarray, refits: dict | None = None) -> np.ndarray | None:
+             w: np.ndarray) -> np.ndarray | None:
     """The winner's joints up to k with another start's joints from k on (every k, every other start),
     refitted from the winner's camera: q (F, nq) of the lowest robust objective if it is below the
-    winner's own refitted one, else None. ``refits``: the refits of this winner made so far, by graft,
-    reused and added to (a dict kept between calls for one winner).
+    winner's own refitted one, else None.
 
     Why: each start is fitted under its own camera, and a start whose arm is off (the weak fit's camera
     placed for another branch) ends in a poor minimum even when its wrist is on the right side of the
@@ -671,10 +663,7 @@ def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], track
             a0 = a_best.copy()
             a0[:, k:] = a[:, k:]
             grafts.append(robot.from_angles(a0))
-    refits = {} if refits is None else refits
-    todo = {q.tobytes(): q for q in [best["q"]] + grafts if q.tobytes() not in refits}
-    refits.update(zip(todo, map_tasks(robot, refit, todo.values())))
-    (_, base), *refitted = [refits[q.tobytes()] for q in [best["q"]] + grafts]
+    (_, base), *refitted = map_tasks(robot, refit, [best["q"]] + grafts)
     winner = None
     for q1, obj in refitted:
         if obj < base - 1e-3 * abs(base):  # not a rounding-level tie
