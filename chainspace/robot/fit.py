@@ -491,10 +491,14 @@ def fit_joint_angles(
         def robust_cost(rn, delta):
             return float((w2 * _huber(rn, delta)[0]).sum())
 
+        def on_one_of(q_fix, fits):  # the rule that drops a candidate: its branch search put it on one of fits
+            return any(_same_motion(robot, q_fix, k["q"]) for k in fits)
+
         def refine_2d(c, known):
-            # the refined fit of candidate c, with the motion that each round of the branch search put it
-            # on and the iterations spent up to there (``fixes``: see ``refined``), and its own iterations;
-            # only those where a round puts it on a fit in ``known`` (refined before it: it is dropped)
+            # the refined fit of candidate c (with its iterations, ``n_iter``), and ``fixes``: per round of the
+            # branch search, the motion it put c on and the iterations spent up to there (``refined`` drops c
+            # at the first round on a fit refined before it); only ``fixes`` where a round put it on one of
+            # ``known`` (it is dropped then)
             n_iter, fixes = 0, []
             P0, _ = _affine_camera(c["pos"], tracks, w2, per_frame)
             pos, jac = robot.jacobians(c["q"])
@@ -525,7 +529,7 @@ def fit_joint_angles(
                 q_fix, view_fix = branches(robot, out[0], tracks, w2, out[1], free, sig, c["gauge"],
                                                       per_frame, blind, unseen2)
                 fixes.append((q_fix, n_iter + out[-1]))
-                if any(_same_motion(robot, q_fix, k["q"]) for k in known):
+                if on_one_of(q_fix, known):
                     return dict(fixes=fixes)
                 if _same_motion(robot, q_fix, out[0]):
                     break
@@ -576,8 +580,7 @@ def fit_joint_angles(
             new: list[dict] = []
             seen = list(known)
             for r in imap_tasks(robot, lambda c: refine_2d(c, seen), starts, step):
-                dropped_at = next((it for q_fix, it in r["fixes"] if any(_same_motion(robot, q_fix, k["q"])
-                                                                         for k in seen)), None)
+                dropped_at = next((it for q_fix, it in r["fixes"] if on_one_of(q_fix, seen)), None)
                 n_iter += r["n_iter"] if dropped_at is None else dropped_at
                 if dropped_at is None:
                     new.append(r)
