@@ -928,6 +928,13 @@ _pools: dict[tuple[int, int], ThreadPoolExecutor] = {}  # by (process, threads):
 MIN_ROWS_PER_THREAD = 256  # below it a thread's start costs more than its share of the rows
 
 
+def _pool(pools: dict, n: int, name: str) -> ThreadPoolExecutor:
+    """The pool of ``n`` threads named ``name`` in ``pools``, made on first use (one per process: a forked
+    child makes its own)."""
+    key = (os.getpid(), n)
+    return pools.get(key) or pools.setdefault(key, ThreadPoolExecutor(n, thread_name_prefix=name))
+
+
 def run_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, lam, active, last_it, rn, pos_out,
              kept, more, model):
     """:func:`lm_rows` with its rows shared among :func:`threads` threads (the compiled loop releases
@@ -937,8 +944,7 @@ def run_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, 
         lm_rows(q, tz, w, M, T, pinhole, f, cxy, free, delta, tol, it_from, it_to, lam, active, last_it, rn, pos_out,
                 kept, more, model)
         return
-    key = (os.getpid(), n)
-    pool = _pools.get(key) or _pools.setdefault(key, ThreadPoolExecutor(n, thread_name_prefix="chainspace-lm"))
+    pool = _pool(_pools, n, "chainspace-lm")
     cuts = np.linspace(0, len(q), n + 1).astype(int)
     jobs = [pool.submit(lm_rows, *(x[a:b] for x in (q, tz, w, M, T)), pinhole, f, cxy, free[a:b], delta, tol,
                         it_from, it_to,
@@ -973,8 +979,7 @@ def imap_tasks(robot, fn: Callable, items, step: Callable[[int], None] | None = 
             step(i)
             yield fn(x)
         return
-    key = (os.getpid(), n)
-    pool = _task_pools.get(key) or _task_pools.setdefault(key, ThreadPoolExecutor(n, thread_name_prefix=_TASK_THREAD))
+    pool = _pool(_task_pools, n, _TASK_THREAD)
     jobs = [pool.submit(fn, x) for x in items]
     for i, job in enumerate(jobs):
         step(i)
