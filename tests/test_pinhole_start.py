@@ -76,9 +76,11 @@ def test_the_search_skips_the_winners_own_camera_only_where_the_winner_is_not_po
     best = {"sse": sse, "view": view, "q": tr.q}
     calls = []
 
-    def fake_start(robot_, tracks, w, free_, gauge_, K_, skip=None):
+    def fake_start(robot_, tracks, w, free_, gauge_, K_, skip=None, missed_max=None):
         frames = np.arange(3)
         calls.append(None if skip is None else skip(view, tr.q[frames], frames))
+        # (and a camera under which the seeds miss most frames is no start there: see the next test)
+        assert (missed_max is None) == (not skips)
         return None
 
     monkeypatch.setattr(ps, "pinhole_start", fake_start)
@@ -86,3 +88,28 @@ def test_the_search_skips_the_winners_own_camera_only_where_the_winner_is_not_po
     st = {"px_floor": 1.0, "free": free, "gauge": gauge}
     assert _searched_start(robot, best, tr.tracks, w, st, K, w.sum() * 2, weak_sse) is None
     assert calls == ([None if not skips else True] if searched else []), calls
+
+
+@pytest.mark.parametrize("turned_deg, missed_max, started", [(0.0, 0.5, True), (40.0, 0.5, False), (40.0, None, True)])
+def test_a_searched_camera_that_misses_most_frames_is_no_start_if_asked(close_clip, monkeypatch, turned_deg,
+                                                                          missed_max, started):
+    """Under the robot's camera an arm's seeds miss a minority of frames, which more seeds mend; under a wrong
+    one they miss every frame (the milling arm at 1.5-3 reaches, 300 frames: all 300, and still after the
+    retry), and the start it would give cost seconds to refine and lost: no start then, where the caller
+    asks (its winner fits at the noise; a quadruped's seeds miss most frames under its own camera)."""
+    import chainspace.robot.pinhole_start as ps
+    from chainspace.robot.views import _PinholeView
+
+    robot, tr = close_clip
+    F = len(tr.tracks)
+    gauge = np.arange(robot.nv) == 0
+    free = np.ones((F, robot.nv), bool)
+    free[0] = ~gauge
+    K = tr.intrinsics.K
+    a = np.radians(turned_deg)
+    turn = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
+    view = _PinholeView((turn @ tr.camera_R)[None], (turn @ tr.camera_t)[None], float(K[0, 0]), K[:2, 2].copy(),
+                        np.zeros(F, int))
+    monkeypatch.setattr(ps, "search_camera", lambda robot_, tracks, w, free_, K_, frames: (0.0, view, tr.q[frames]))
+    found = ps.pinhole_start(robot, tr.tracks, np.ones(tr.tracks.shape[:2]), free, gauge, K, None, missed_max)
+    assert (found is not None) == started

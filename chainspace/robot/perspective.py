@@ -137,9 +137,10 @@ def _searched_start(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: n
     the weak starts leaves squared residuals above :data:`SEARCH_ABOVE_NOISE` times what the tracks' own
     jitter (:func:`chainspace.robot.uncertainty.track_jitter`; on exact tracks, a twentieth of the weak
     fit's image-size tolerance ``px_floor``) allows, or beats weak perspective's squared residuals
-    ``weak_sse`` by more than :data:`LR_MARGIN` jitter variances; else None, and None where the searched
-    camera is the best fit's own (:func:`_same_view`) and the best fit is not poor. With the focal
-    unknown the search uses the best fit's. Returns (q (F, nq), camera) for the refinement.
+    ``weak_sse`` by more than :data:`LR_MARGIN` jitter variances; else None, and None where the best fit
+    is not poor and the searched camera is its own (:func:`_same_view`) or one under which the IK's seeds
+    miss most frames (:data:`chainspace.robot.pinhole_start.MOST_MISSED`). With the focal unknown the
+    search uses the best fit's. Returns (q (F, nq), camera) for the refinement.
 
     Why only then: where the weak starts serve (far views) the fit is at the noise already and no
     better than weak perspective's, and the search costs seconds (the milling arm at close range, 300
@@ -148,7 +149,7 @@ def _searched_start(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: n
     every weak start can lie in another motion's basin. The double pendulum (one moving point, on
     joint1's circle; synthesize's pinhole camera, K known, 30 frames, seed 39): joint1 60 degrees RMS
     off from the weak starts, unflagged (:func:`_pinhole_gauge` applied); 0.2 degrees from this start."""
-    from .pinhole_start import pinhole_start
+    from .pinhole_start import MOST_MISSED, pinhole_start
     from .uncertainty import track_jitter
 
     jitter = track_jitter(tracks, w)
@@ -168,7 +169,8 @@ def _searched_start(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: n
     # and 12.9 degrees RMS off, against 0.08, 0.33 and 0.27 with the searched start refined)
     same = None if poor else (lambda pv, q, frames: _same_view(robot, pv, view) or _same_view(
         robot, pv, _gauge_turned(robot, best["q"][frames], view, st["gauge"], q)))
-    found = pinhole_start(robot, tracks, w, st["free"], st["gauge"], view.K if K is None else K, same)
+    found = pinhole_start(robot, tracks, w, st["free"], st["gauge"], view.K if K is None else K, same,
+                          None if poor else MOST_MISSED)
     if found is None:
         return None
     q, pv = found
