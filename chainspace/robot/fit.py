@@ -201,7 +201,7 @@ from ..progress import stage, stage_steps
 from .kinematics import RobotKinematics, _rest_distance, _roughness
 from .result import JointFit
 from .views import _affine_camera, _align, _camera_view, _looks_down, similarity_align
-from .compiled import imap_tasks
+from .compiled import imap_tasks, map_tasks
 from .solver import _huber, _motion_prior, _noise_sigma, _rms_per_frame, _robust_scale, _sequence_lm
 from .starts import _fit_3d, _initial_camera, _sequential_ik
 from .observability import _fill_unseen, _gauge_directions, _hold, _notes, _structural, _unseen, _weights
@@ -614,6 +614,7 @@ def fit_joint_angles(
 
         results, mirror_tied = order(results)
         far_found: dict[tuple[int, bool], tuple] = {}
+        far_lock = threading.Lock()
 
         def far_mirrors(r, up_to_links):
             # r's points mirrored by the reflection that keeps the base points in place (an arm's vertical
@@ -622,28 +623,28 @@ def fit_joint_angles(
             # depth under r's camera (the same image: the mirror of the arm up to that link). Searched
             # once per motion (r kept with its result, so that its id is not reused).
             key = (id(r), up_to_links)
-            if key not in far_found:
-                X = r["out"][3]
-                targets = _mirror_targets(robot, X, r["out"][1]) if up_to_links else [X]
-                far_found[key] = (r, _far_poses(robot, r["out"][0], [base_mirror(m) for m in targets], free_blind)
-                                  if base_mirror is not None else [])
-            return far_found[key][1]
+            with far_lock:  # (a round's two reflections ask for the same searches at once: made once)
+                if key not in far_found:
+                    X = r["out"][3]
+                    targets = _mirror_targets(robot, X, r["out"][1]) if up_to_links else [X]
+                    far_found[key] = (r, _far_poses(robot, r["out"][0], [base_mirror(m) for m in targets],
+                                                    free_blind) if base_mirror is not None else [])
+                return far_found[key][1]
 
         def reflection(r, M, up_to_links=True):
             # r's motion reflected by M (3 x 3, base frame), fitted in 3D from the refined motion (a far
             # better start than the reconstruction): candidates to refine on the tracks, the first its fit
-            # (the mirrors up to each link after it only with ``up_to_links``)
-            nonlocal n_iter
+            # (the mirrors up to each link after it only with ``up_to_links``), and the iterations spent
+            # (returned, not counted here: a round's two reflections are made on two threads)
             X_alt = np.einsum("ij,fkj->fki", M, r["out"][3])
             q_a, view_a, it_a = _fit_3d(robot, X_alt, w3, free_blind, transform, max_iter, tol, gauge0)
-            n_iter += it_a
+            spent = [it_a]
 
             def fitted(q_s):
-                nonlocal n_iter
                 q_s, free_a = _hold(robot, q_s, blind, r["c"]["gauge"], False, unseen3)
                 view_a = _align(robot.positions(q_s), X_alt, w3, transform)
                 out = _sequence_lm(robot, q_s, X_alt, w3, view_a, free_a, free_sim, 20, tol, None)
-                n_iter += out[5]
+                spent.append(out[5])
                 return out
 
             def candidate(q_s, pos, conv, **kw):
@@ -689,7 +690,7 @@ def fit_joint_angles(
             # so is a quadruped's whole mirror (per-frame IK drifted onto its legs' other branches; an
             # arm's whole mirror refined as a whole path ended in a wrong basin of the xArm7's wrist)
             return [candidate(f[0], f[3], f[4], whole_path=whole_f) for f, whole_f in fits] + \
-                [candidate(q_s, robot.positions(q_s), True, whole_path=True) for q_s in partial]
+                [candidate(q_s, robot.positions(q_s), True, whole_path=True) for q_s in partial], sum(spent)
 
         def depth_mirror(r):
             R0 = r["out"][1].R[0] if not per_frame else r["out"][1].R.mean(0)
@@ -702,7 +703,10 @@ def fit_joint_angles(
 
         def reflected_start(r):
             # r's depth mirror image, a start for the smoothed fit (held as the refinement holds)
-            c = reflection(r, depth_mirror(r), up_to_links=False)[0]
+            nonlocal n_iter
+            made, spent = reflection(r, depth_mirror(r), up_to_links=False)
+            n_iter += spent
+            c = made[0]
             q = _hold(robot, c["q"], blind, c["gauge"], False, unseen2)[0]
             return dict(r, c=c, q=q, free_prior=_hold(robot, q, blind, c["gauge"], False, never2)[1],
                         view=_camera_view(robot.positions(q), tracks, w2, False))
@@ -720,8 +724,9 @@ def fit_joint_angles(
                 reflected.append(r0)
                 stage(f"robot fit: refining the best fit's two reflections on the tracks (round %d of at most "
                       f"{REFLECTION_ROUNDS})", len(reflected))
-                alts = refined((c for M in (depth_mirror(r0), SYMMETRY_MIRROR) for c in reflection(r0, M)),
-                               results)
+                made = map_tasks(robot, lambda M: reflection(r0, M), (depth_mirror(r0), SYMMETRY_MIRROR))
+                n_iter += sum(spent for _, spent in made)
+                alts = refined([c for cs, _ in made for c in cs], results)
                 results, mirror_tied = order(results + alts)
             if not per_frame:
                 # the camera's freedom about the base's line of tracked points: the best motion turned about

@@ -22,6 +22,7 @@ from typing import Callable
 
 import numpy as np
 
+from .compiled import map_tasks
 from .kinematics import RobotKinematics, _held_q, _random_q, _seeded
 from .solver import _sequence_lm
 from .starts import _rotation_candidates, _sequential_ik
@@ -206,13 +207,15 @@ def search_camera(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, fre
     # every one of them refined, the best kept: where few tracked points move (the double pendulum: one),
     # a candidate can fit the search's few frames within the noise and still be another motion's camera,
     # so the first one within the noise ends nothing
-    best = None
-    for j in np.argsort(cost)[:N_REFINED]:
+    def refined(j):  # candidate j's camera fitted with its frames' joints, on a thread of its own
         view = _PinholeView(Rs[j][None].copy(), ts[j][None].copy(), f, c, np.zeros(n_f, int))
         qj = _best_of(*_multi_seed_ik(robot, uz[frames], w[frames], view, free[frames]))
         qj, view, rnj, _, _, _ = _sequence_lm(robot, qj, uz[frames], w[frames], view, free[frames], np.ones(6, bool),
                                               100, 1e-10, HUBER_EXTENT * extent)
-        cj = float(_cost(rnj[None], w[frames][None])[0])
+        return float(_cost(rnj[None], w[frames][None])[0]), view, qj
+
+    best = None
+    for cj, view, qj in map_tasks(robot, refined, np.argsort(cost)[:N_REFINED]):
         if view.apply(robot.positions(qj))[1][..., 2].min() > 0 and (best is None or cj < best[0]):
             best = (cj, view, qj)
     return best
