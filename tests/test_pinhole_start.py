@@ -25,6 +25,15 @@ def close_clip():
     return robot, tr
 
 
+def _first_joint_gauge(robot, n_frames):
+    """A static camera sees the first joint (about the base's vertical axis) only relative to frame 0: the
+    gauge (nv,), and the directions (n_frames, nv) each frame may move, the gauge held in frame 0."""
+    gauge = np.arange(robot.nv) == 0
+    free = np.ones((n_frames, robot.nv), bool)
+    free[0] = ~gauge
+    return gauge, free
+
+
 def test_the_searched_start_finds_the_close_camera(close_clip):
     robot, tr = close_clip
     y_true = tr.positions @ tr.camera_R.T + tr.camera_t
@@ -32,9 +41,7 @@ def test_the_searched_start_finds_the_close_camera(close_clip):
     F = len(tr.tracks)
     # a static camera sees the first joint (about the base's vertical axis) only relative to frame 0
     assert robot.joint_names[0] == "joint_a1"
-    gauge = np.arange(robot.nv) == 0
-    free = np.ones((F, robot.nv), bool)
-    free[0] = ~gauge
+    gauge, free = _first_joint_gauge(robot, F)
     q, view = pinhole_start(robot, tr.tracks, np.ones(tr.tracks.shape[:2]), free, gauge, tr.intrinsics.K)
     pred, y = view.apply(robot.positions(q))
     # the robot where the camera saw it (camera frame: free of the first joint's offset, and of the
@@ -68,9 +75,7 @@ def test_the_search_skips_the_winners_own_camera_only_where_the_winner_is_not_po
 
     robot, tr = close_clip
     F = len(tr.tracks)
-    gauge = np.arange(robot.nv) == 0
-    free = np.ones((F, robot.nv), bool)
-    free[0] = ~gauge
+    gauge, free = _first_joint_gauge(robot, F)
     K = tr.intrinsics.K
     view = _PinholeView(tr.camera_R[None], tr.camera_t[None], float(K[0, 0]), K[:2, 2].copy(), np.zeros(F, int))
     best = {"sse": sse, "view": view, "q": tr.q}
@@ -102,9 +107,7 @@ def test_a_searched_camera_that_misses_most_frames_is_no_start_if_asked(close_cl
 
     robot, tr = close_clip
     F = len(tr.tracks)
-    gauge = np.arange(robot.nv) == 0
-    free = np.ones((F, robot.nv), bool)
-    free[0] = ~gauge
+    gauge, free = _first_joint_gauge(robot, F)
     K = tr.intrinsics.K
     a = np.radians(turned_deg)
     turn = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
