@@ -63,6 +63,10 @@ SEARCH_ABOVE_NOISE = 2.0
 # arm, 100 frames; the double pendulum, 30 frames, seeds 7 and 10), the others 13 degrees or more
 SAME_VIEW_DEG = 10.0
 SAME_VIEW_DEPTH = 0.05
+# two starts of the perspective fit whose camera stages end this close (radians on every joint but the gauge
+# joint's turn; relative cost) are one start (:func:`_turned_copy`). Seen: 2e-8 rad and 2e-8 of the cost
+# between the milling arm's winner and its turns (300 frames, K known), the distinct starts 0.04 rad or more
+SAME_START_RAD = 1e-6
 # two fits whose residuals agree this closely (in noise deviations) at every seen point put the tracked
 # points in the same place: exact twins (:func:`_nearest_rest_of_exact`). Seen: 1e-12 for the milling
 # arm's wrist twins (noise-free), 0.3 for two distinct minima of the Panda (1 px noise)
@@ -222,6 +226,18 @@ def _gauge_turned(robot: RobotKinematics, q: np.ndarray, view: _PinholeView, gau
                                scale=False)  # the turn, x_t = A x + b (as candidates._turned_twins)
     R = view.R[0] @ A.T
     return replace(view, R=R[None], t=(view.t[0] - R @ b)[None])
+
+
+def _turned_copy(robot: RobotKinematics, a: tuple, b: tuple, gauge: np.ndarray) -> bool:
+    """Whether the camera stage's results a and b (``camera_start``'s (cost, camera, q, ...)) are one
+    motion: b's q (F, nq) a's turned about the gauge joints (nv,) by one angle in every frame (its
+    camera turned to match) within :data:`SAME_START_RAD`, at a's cost to within a relative
+    :data:`SAME_START_RAD`. Not :func:`chainspace.robot.candidates._same_motion`'s tolerance: a start
+    is skipped only where its refinement would repeat another's to rounding."""
+    d = robot.wrap_angles(robot.angles(b[2]) - robot.angles(a[2]))
+    d[:, gauge] -= d[:1, gauge]
+    return bool(np.abs(robot.wrap_angles(d)).max() < SAME_START_RAD and
+                abs(b[0] - a[0]) <= SAME_START_RAD * max(abs(a[0]), 1e-12))
 
 
 def _pinhole_gauge(robot: RobotKinematics, st: dict, w: np.ndarray, unseen: np.ndarray) -> dict:
@@ -452,6 +468,11 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     # lower camera-stage cost pushed the true basin's start out, and the fit ended 151 degrees off
     by_cost = sorted(range(1, len(starts)), key=lambda k: screened[k][0])
     keep = [0] + [k for k in by_cost if k < len(given)][:MAX_STARTS - 1] + [k for k in by_cost if k >= len(given)][:1]
+    # (a start the camera stage brought onto one kept before it, turned about the gauge joint, would be refined
+    # to that one's fit: the milling arm, 300 frames, K known: all three turns of the winner's start, and the
+    # turned start kept, a quarter turn from the winner's, ended on its objective to 1e-9 after 1 s of refining)
+    keep = [k for i, k in enumerate(keep) if not any(_turned_copy(robot, screened[j], screened[k], starts[k]["gauge"])
+                                                    for j in keep[:i])]
     step = stage_steps("robot fit, perspective: refining in full, start", len(keep))
     for r in map_tasks(robot, lambda k: first if k == 0 and early else refine_in_full(k), keep, step):
         fits += r
