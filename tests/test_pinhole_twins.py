@@ -2,15 +2,13 @@
 on joint1's circle). The camera start from PnP, the mirror-image twin of a pinhole fit, the starts turned
 about the first joint's axis, and the fit that ends on the true motion or says it does not know."""
 
-import warnings
-
 import numpy as np
 import pytest
 
 from chainspace.bench.robots import robot_chain
 from chainspace.robot.candidates import _pinhole_twin
 from chainspace.robot.kinematics import RobotKinematics
-from chainspace.robot.perspective import _in_front, _pnp_camera
+from chainspace.robot.perspective import _in_front, _pnp_camera, _turned_copy
 from chainspace.robot.starts import _base_turns
 from chainspace.robot.views import _PinholeView
 from chainspace.synthetic.robot import synthesize
@@ -104,6 +102,22 @@ def test_the_perspective_fit_finds_the_true_motion_from_starts_a_half_turn_off(p
                                           30.0, None, np.zeros((F, robot.nv), bool), 50, 1e-8, 1e9, False)
     err = np.degrees(np.abs(robot.wrap_angles(robot.angles(best["q"]) - robot.angles(tr.q))))[:, 0]
     assert err.max() < 0.1 and best["sse"] < 1e-3
+
+
+def test_a_start_turned_about_the_gauge_joint_at_the_same_cost_is_one_start(pendulum):
+    # the perspective fit refines one of two camera-stage results (cost, camera, q) that are one motion
+    _, robot = pendulum
+    q = robot.from_angles(np.column_stack([np.linspace(0.1, 0.6, 5), np.linspace(-0.4, 0.2, 5)]))
+    gauge = np.array([True, False])
+    for q_t in _base_turns(robot, q):
+        assert _turned_copy(robot, (10.0, None, q), (10.0, None, q_t), gauge)
+        assert not _turned_copy(robot, (10.0, None, q), (10.001, None, q_t), gauge)  # another cost
+        assert not _turned_copy(robot, (10.0, None, q), (10.0, None, q_t), ~gauge)  # a turn of no gauge joint
+    ramp = robot.from_angles(robot.angles(q) + np.outer(np.linspace(0.0, 1e-3, 5), [1.0, 0.0]))
+    assert not _turned_copy(robot, (10.0, None, q), (10.0, None, ramp), gauge)  # not one angle in every frame
+    bent = robot.from_angles(robot.angles(q) + [0.0, 1e-4])
+    assert not _turned_copy(robot, (10.0, None, q), (10.0, None, bent), gauge)
+    assert _turned_copy(robot, (10.0, None, q), (10.0, None, q.copy()), np.zeros(2, bool))
 
 
 def test_a_turn_about_the_first_axis_with_the_camera_turned_moves_only_the_base_in_the_image(pendulum):
