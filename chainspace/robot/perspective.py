@@ -7,8 +7,9 @@ stands can be wrong), each camera from the weak camera's pose and, with K known,
 start's points (:func:`_pnp_camera`); every start goes through that camera stage (a camera stage that
 ends with the robot behind its camera continues from the exact mirror twin in front,
 :func:`chainspace.robot.candidates._pinhole_twin`), and the winner, the others that fit best there
-(:data:`MAX_STARTS`) and the best turned start are refined in full; fits with points behind the camera
-are dropped (:func:`_in_front`). The winner's mirror image, facing the camera as it does (its twin
+(:data:`MAX_STARTS`) and the best turned start are refined in full, each motion once (:func:`_turned_copy`:
+a turned start often comes back onto its original); fits with points behind the camera are dropped
+(:func:`_in_front`). The winner's mirror image, facing the camera as it does (its twin
 under weak perspective), and the winner turned about the first joint's axis with the camera turned to
 match (:func:`chainspace.robot.candidates._turned_twins`: only the base's points off that axis tell
 them apart) are refitted too where a plain fit of them ties: ties perspective may not settle, which no
