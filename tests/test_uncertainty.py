@@ -198,6 +198,27 @@ def test_ties_with_the_winner_count_when_a_restart_found_a_lower_minimum_of_the_
     assert len(alts) == 1 and np.allclose(alts[0]["angles"][:, 3], np.pi) and alts[0]["score"] == 100.0
 
 
+def test_a_motion_turned_by_one_angle_on_a_joint_seen_relative_to_frame_0_is_no_alternative(arm):
+    # a constant offset of such a joint is a turn of the camera: the same motion, reported the same
+    from chainspace.robot.uncertainty import alternatives_of
+
+    chain, robot = arm
+    q = np.tile(np.linspace(0.0, 0.3, 4)[:, None], (1, robot.nv))
+    winner = dict(q=q)
+    turned = q.copy()
+    turned[:, 0] += np.pi / 2
+    twin = turned.copy()
+    twin[:, 3] += np.pi  # a real tie, also turned
+    ramp = q.copy()
+    ramp[:, 0] += np.linspace(0.0, 0.2, 4)  # not one angle: another motion
+    scored = [(100.0, winner), (100.0, dict(q=turned)), (100.0, dict(q=twin)), (100.0, dict(q=ramp))]
+    relative = np.arange(robot.nv) == 0
+    alts = alternatives_of(robot, winner, scored, 1.0, lambda r: None, relative)
+    assert len(alts) == 2 and np.allclose(alts[0]["angles"][:, 3] - q[:, 3], np.pi)
+    assert np.allclose(alts[1]["angles"][:, 0] - q[:, 0], np.linspace(0.0, 0.2, 4))
+    assert len(alternatives_of(robot, winner, scored, 1.0, lambda r: None)) == 3  # without: the turn counts
+
+
 def test_searching_for_ties_finds_at_least_what_the_assessment_without_it_finds():
     """search_ties=True adds candidates (refitted flips, another branch, shifted restarts) to the same
     assessment: the reported motion is the same, and every alternative found without it is still there."""

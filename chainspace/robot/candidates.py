@@ -19,16 +19,24 @@ from .observability import _hold, _moves
 # * candidate: a fitted motion, a dict with at least ``q`` (F, nq) and its ``out`` of the solver;
 # * tolerance: two candidates tie when their objectives (squared or robust residuals, plus the motion
 #   prior when smoothed) differ by at most TIE_VARIANCES noise variances (a likelihood-ratio test);
-# * de-duplication: two motions are one when no joint differs by more than DISTINCT_RAD in any frame;
+# * de-duplication: two motions are one when no joint differs by more than DISTINCT_RAD in any frame (a
+#   joint seen only relative to frame 0 compared as its change since frame 0, where the caller knows it);
 # * distance to rest: kinematics._rest_distance (summed absolute wrapped offsets from the rest pose).
 TIE_VARIANCES = 25.0
 DISTINCT_RAD = 0.05
 
 
-def _same_motion(robot: RobotKinematics, qa: np.ndarray, qb: np.ndarray) -> bool:
+def _same_motion(robot: RobotKinematics, qa: np.ndarray, qb: np.ndarray, relative: np.ndarray | None = None) -> bool:
     """True when motions qa and qb (F, nq or nq) are one candidate: no entry differs by more than
-    :data:`DISTINCT_RAD` (wrapped)."""
-    return bool(np.abs(_wrapped(robot, np.asarray(qa) - np.asarray(qb))).max() < DISTINCT_RAD)
+    :data:`DISTINCT_RAD` (wrapped); the joints ``relative`` (nv,), seen only relative to frame 0, compared
+    as their change since frame 0 (motions (F, nq) only): one offset in every frame is a turn of the camera.
+    The Kinova from below (full ranges, pinhole, seed 30) listed its own motion with joint 1 a quarter turn
+    off as another that fits as well."""
+    if relative is None or not np.any(relative):
+        return bool(np.abs(_wrapped(robot, np.asarray(qa) - np.asarray(qb))).max() < DISTINCT_RAD)
+    d = robot.wrap_angles(robot.angles(qa) - robot.angles(qb))
+    d[:, relative] -= d[:1, relative]
+    return bool(np.abs(robot.wrap_angles(d)).max() < DISTINCT_RAD)
 
 
 def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,

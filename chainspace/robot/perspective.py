@@ -542,8 +542,9 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     # below, full ranges, seed 44, was said to tie with its mirror image where its only unsettled
     # alternatives were its wrist's exact twins, flagged on the wrist's joints)
     twin_of_best = _exact_twin_of(best, w)
+    relative = best["start"]["gauge"] & ~best["start"]["blind"]
     others = [r for r in fits if r is not best and not any(r.get(k) for k in ("window", "twin", "turn")) and
-              np.abs(_wrapped(robot, r["q"] - best["q"])).max() > 0.05 and not twin_of_best(r)]
+              not _same_motion(robot, r["q"], best["q"], relative) and not twin_of_best(r)]
     best["settled"] = all(r["objective"] - best["objective"] > LR_MARGIN * var for r in others)
     best["n_alternatives"] = len(others)
     best["var"] = var

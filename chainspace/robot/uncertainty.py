@@ -181,11 +181,13 @@ UNCERTAIN_SIGMAS = 2.0
 
 
 def alternatives_of(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict]], sigma: float,
-                    settled) -> list[dict]:
+                    settled, relative: np.ndarray | None = None) -> list[dict]:
     """The other motions that fit the tracks as well as the reported one (``winner``): of ``scored``
     ((objective, fit) pairs, fits with ``q``), those within the tie tolerance of the lowest objective or
     of the winner's (:data:`chainspace.robot.candidates.TIE_VARIANCES` noise variances ``sigma^2``: a
-    likelihood-ratio test), distinct from the winner and from each other (:func:`chainspace.robot.candidates._same_motion`).
+    likelihood-ratio test), distinct from the winner and from each other
+    (:func:`chainspace.robot.candidates._same_motion`, the joints ``relative`` (nv,) to frame 0 compared as
+    their change since frame 0).
 
     Each is ``{"angles": (F, nv), "score": objective above the lowest in noise variances (0: an exact
     tie), "settled_by": the rule that validly set it aside (``settled(fit)``, e.g. the camera side), or
@@ -203,7 +205,7 @@ def alternatives_of(robot: RobotKinematics, winner: dict, scored: list[tuple[flo
     seen = [winner["q"]]
     for s, r in sorted(scored, key=lambda sr: sr[0]):
         if r is winner or s - max(lowest, own) > TIE_VARIANCES * var or \
-                any(_same_motion(robot, r["q"], o) for o in seen):
+                any(_same_motion(robot, r["q"], o, relative) for o in seen):
             continue
         seen.append(r["q"])
         out.append({"angles": robot.angles(r["q"]), "score": float((s - lowest) / var), "settled_by": settled(r)})
@@ -401,7 +403,7 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     if search:
         for base in [winner] + _runners_up(robot, winner, scored, SHAKE_RUNNERS_UP):
             scored += _shaken(robot, base, winner, scored, tracks, w, prior, free, ~rel, var, settled)
-    alts = alternatives_of(robot, winner, scored, sigma, lambda x: "camera side" if settled(x) else None)
+    alts = alternatives_of(robot, winner, scored, sigma, lambda x: "camera side" if settled(x) else None, rel)
     ambiguous, worst = ambiguous_joints(robot, robot.angles(q), alts, ~blind, rel)
     notes = []
     seen = np.isfinite(tracks).all(-1)
