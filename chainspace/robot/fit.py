@@ -85,7 +85,8 @@ variances of the best: a likelihood-ratio test), applies these rules:
 * *The tie policy.* All the rules above use one candidate type (a fitted motion, ``q`` with the
   solver's output), one tolerance (objectives within ``candidates.TIE_VARIANCES`` = 25 noise
   variances), one de-duplication (motions within ``candidates.DISTINCT_RAD`` = 0.05 rad in every
-  frame and joint are one) and one distance to rest (``kinematics._rest_distance``). The camera-side
+  frame and joint are one; a joint seen only relative to frame 0 compared as its change since frame 0
+  where the alternatives are listed) and one distance to rest (``kinematics._rest_distance``). The camera-side
   rule decides only where it is valid (``selection.view_side_valid``: the robot stands above its base
   plane; legs or a hanging limb do not). What the rules could not settle validly is reported, not
   hidden: ``fit.alternatives`` (the tied motions, the reported motion's exact depth-flip twins
