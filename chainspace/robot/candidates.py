@@ -34,9 +34,15 @@ def _same_motion(robot: RobotKinematics, qa: np.ndarray, qb: np.ndarray, relativ
     off as another that fits as well."""
     if relative is None or not np.any(relative):
         return bool(np.abs(_wrapped(robot, np.asarray(qa) - np.asarray(qb))).max() < DISTINCT_RAD)
+    return _motion_distance(robot, qa, qb, relative) < DISTINCT_RAD
+
+
+def _motion_distance(robot: RobotKinematics, qa: np.ndarray, qb: np.ndarray, relative: np.ndarray) -> float:
+    """The largest difference between motions qa and qb (F, nq) over frames and degrees of freedom (rad,
+    wrapped; m for sliding joints), the joints ``relative`` (nv,) compared as their change since frame 0."""
     d = robot.wrap_angles(robot.angles(qa) - robot.angles(qb))
     d[:, relative] -= d[:1, relative]
-    return bool(np.abs(robot.wrap_angles(d)).max() < DISTINCT_RAD)
+    return float(np.abs(robot.wrap_angles(d)).max())
 
 
 def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,

@@ -35,8 +35,8 @@ from .compiled import map_tasks
 from .solver import _huber, _motion_prior, _noise_sigma, _normal_equations, _sequence_lm, _smooth_lm, \
     _smoothed_objective
 from .views import _PinholeView, _camera_view, _pinhole_from_weak
-from .candidates import TIE_VARIANCES, _pinhole_twin, _same_motion, _static_line_starts, _turned_twins, \
-    _viterbi_reanchored
+from .candidates import TIE_VARIANCES, _motion_distance, _pinhole_twin, _same_motion, _static_line_starts, \
+    _turned_twins, _viterbi_reanchored
 from .starts import _base_turns
 
 # a perspective fit must beat weak perspective's by this many noise variances (squared residuals, a
@@ -235,9 +235,7 @@ def _turned_copy(robot: RobotKinematics, a: tuple, b: tuple, gauge: np.ndarray) 
     camera turned to match) within :data:`SAME_START_RAD`, at a's cost to within a relative
     :data:`SAME_START_RAD`. Not :func:`chainspace.robot.candidates._same_motion`'s tolerance: a start
     is skipped only where the camera stage put it on another's motion to rounding."""
-    d = robot.wrap_angles(robot.angles(b[2]) - robot.angles(a[2]))
-    d[:, gauge] -= d[:1, gauge]
-    return bool(np.abs(robot.wrap_angles(d)).max() < SAME_START_RAD and
+    return bool(_motion_distance(robot, b[2], a[2], gauge) < SAME_START_RAD and
                 abs(b[0] - a[0]) <= SAME_START_RAD * max(abs(a[0]), 1e-12))
 
 
