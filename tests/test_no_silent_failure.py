@@ -67,6 +67,23 @@ def test_a_point_the_fit_misses_in_most_frames_flags_the_joints_that_move_it(arm
     assert not poor_fit_joints(robot, q, tiny, w, 1e-12, extent=500.0)[0].any()
 
 
+def test_a_point_missed_in_the_middle_of_the_arm_flags_the_joints_beyond_it_too(arm):
+    # they turn their links relative to a parent the fit placed wrong
+    chain, robot = arm
+    rng = np.random.default_rng(2)
+    F, J = 40, len(chain.joints)
+    q = _random_q(robot, rng, F)
+    rn = np.linalg.norm(rng.normal(size=(F, J, 2)), axis=-1)
+    moves = np.linalg.norm(robot.jacobians(q[::8])[1], axis=2).max(0) > 1e-9  # (J, nv)
+    mid = next(j for j in range(J) if 1 < moves[j].sum() < moves.any(0).sum())  # some joints move it, not all
+    rn[:, mid] += 4.0
+    joints, points, _ = poor_fit_joints(robot, q, rn, np.ones((F, J)), 1.0)
+    assert points == [chain.joints[mid]]
+    beyond = moves.any(0) & ~moves[mid]
+    assert beyond.any() and joints[beyond].all()  # the joints that do not move the missed point
+    assert joints.tolist() == moves.any(0).tolist()  # a serial arm: every joint, up to it and beyond it
+
+
 def test_a_fit_that_misses_every_point_is_judged_by_the_tracks_own_jitter(arm):
     chain, robot = arm
     trial = synthesize(chain, n_frames=60, noise_px=1.0, seed=3)
