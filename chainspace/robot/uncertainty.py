@@ -327,8 +327,8 @@ def _point_medians(rn: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np.ndarray,
                     sigma: float, extent: float = 0.0, jitter: float = np.nan) -> tuple[np.ndarray, list[str], np.ndarray]:
-    """Joints (nv,) that move a tracked point the fit does not explain, the names of those points, and
-    each point's ratio (J,) of its median residual to the noise's.
+    """Joints (nv,) that move a tracked point the fit does not explain or lie beyond it in the chain, the
+    names of those points, and each point's ratio (J,) of its median residual to the noise's.
 
     rn (F, J) residual lengths (px) of the fit q (F, nq), w (F, J) weights, sigma the measured pixel
     noise per coordinate. A point is poorly fitted when it is seen in at least
