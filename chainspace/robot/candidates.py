@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 
 from .compiled import _compiles, branch_steps
-from .kinematics import RobotKinematics, _gauge_q, _held_q, _random_q, _seeded, _wrapped
+from .kinematics import RobotKinematics, _gauge_q, _held_q, _random_q, _relative_difference, _seeded, _wrapped
 from .views import _PinholeView, _View, _camera_view, similarity_align
 from .solver import _sequence_lm
 from .observability import _hold, _moves
@@ -40,9 +40,7 @@ def _same_motion(robot: RobotKinematics, qa: np.ndarray, qb: np.ndarray, relativ
 def _motion_distance(robot: RobotKinematics, qa: np.ndarray, qb: np.ndarray, relative: np.ndarray) -> float:
     """The largest difference between motions qa and qb (F, nq) over frames and degrees of freedom (rad,
     wrapped; m for sliding joints), the joints ``relative`` (nv,) compared as their change since frame 0."""
-    d = robot.wrap_angles(robot.angles(qa) - robot.angles(qb))
-    d[:, relative] -= d[:1, relative]
-    return float(np.abs(robot.wrap_angles(d)).max())
+    return float(np.abs(_relative_difference(robot, robot.angles(qa), robot.angles(qb), relative)).max())
 
 
 def _viterbi_branches(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.ndarray, view: _View,

@@ -521,6 +521,17 @@ def _wrapped(robot: RobotKinematics, dq: np.ndarray) -> np.ndarray:
     return np.where(robot.revolute, (dq + np.pi) % (2 * np.pi) - np.pi, dq)
 
 
+def _relative_difference(robot: RobotKinematics, a: np.ndarray, b: np.ndarray,
+                         relative: np.ndarray | None) -> np.ndarray:
+    """(F, nv) per-dof coordinates a minus b (:meth:`RobotKinematics.angles`), turning joints wrapped; the
+    joints ``relative`` (nv,), seen only relative to frame 0, as their change since frame 0 (one offset in
+    every frame is a turn of the camera)."""
+    d = a - b
+    if relative is not None:
+        d = d - np.where(relative, d[:1], 0.0)
+    return robot.wrap_angles(d)
+
+
 def _roughness(robot: RobotKinematics, q: np.ndarray) -> float:
     """Sum of squared joint steps between frames (wrapped), rad^2: large where a path jumps branches."""
     return float((_wrapped(robot, np.diff(q, axis=0)) ** 2).sum())

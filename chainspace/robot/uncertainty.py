@@ -37,7 +37,7 @@ import numpy as np
 
 from ..metrics import procrustes_align
 from .compiled import map_tasks
-from .kinematics import RobotKinematics
+from .kinematics import RobotKinematics, _relative_difference
 from .solver import _huber, _noise_sigma, _normal_equations
 from .views import similarity_align
 
@@ -223,10 +223,7 @@ def ambiguous_joints(robot: RobotKinematics, angles: np.ndarray, alternatives: l
     for alt in alternatives:
         if alt["settled_by"]:
             continue
-        d = alt["angles"] - angles
-        if relative is not None:
-            d = d - np.where(relative, d[:1], 0.0)
-        d = robot.wrap_angles(d)
+        d = _relative_difference(robot, alt["angles"], angles, relative)
         rms = np.sqrt(np.mean(d ** 2, axis=0)) * np.where(robot.prismatic_v, 1000.0, np.degrees(1.0))
         worst = np.maximum(worst, rms)
     return (worst > AMBIGUOUS_DEG) & judged, worst
