@@ -932,7 +932,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     residual_3d = _rms_per_frame(np.linalg.norm(positions - np.nan_to_num(poses), axis=-1), w3)
     # the weak fit's ambiguities are perspective's to settle: its own (trust) notes replace them
     msg = "; ".join(m for m in weak_msg.split("; ") if not m.startswith(
-        ("ambiguous: ", "poor fit: ", "uncertain: ")))
+        ("ambiguous: ", "poor fit: ", "uncertain: ", "not converged: ")))
     observable, relative, msg = _pinhole_observability(robot, weak, best, msg)
     tie_note = "; the motion and its mirror image fit the data equally well (weak perspective)"
     if tie_note in msg:

@@ -25,8 +25,8 @@ motion fits as well (the fit's candidates, the depth flips, the wrist's exact Eu
 :func:`poor_fit_joints`): a wrong basin nothing ties with is still not an answer; and where the
 joint's own standard deviation, twice over (:data:`UNCERTAIN_SIGMAS`), is more than
 :data:`AMBIGUOUS_DEG` ("uncertain", :func:`uncertain_joints`): the tracks do not pin it down to the
-accuracy claimed. Each flagged
-joint's reasons are returned one per joint (``reasons``, ``JointFit.joint_reasons``).
+accuracy claimed; and every joint where the solver stopped before it converged ("not converged"). Each
+flagged joint's reasons are returned one per joint (``reasons``, ``JointFit.joint_reasons``).
 """
 
 from __future__ import annotations
@@ -376,8 +376,8 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     or unseen without the motion prior; 0 for a joint seen relative to frame 0, in frame 0),
     ``noise_px`` (the measured pixel noise), ``alternatives`` (:func:`alternatives_of`; ``scored``
     holds (objective, fit) pairs, objectives in units where a noise variance is ``var``), ``ambiguous``
-    (nv,: tied, poorly fitted or uncertain), ``ambiguity_deg`` (nv,), ``notes`` (sentences for the
-    fit's message) and ``reasons`` (nv strings: why each flagged joint is flagged, "" for the rest).
+    (nv,: tied, poorly fitted or uncertain; every joint where the solver stopped before it converged),
+    ``ambiguity_deg`` (nv,), ``notes`` (sentences for the fit's message) and ``reasons`` (nv strings: why each flagged joint is flagged, "" for the rest).
 
     ``winner``: the reported fit (``out``, ``q``, ``free``/``free_prior``, ``delta``); ``prior``: the
     motion prior it was smoothed with, or None; ``wrong_side(fit)``: the camera-side rule, True where
@@ -421,6 +421,11 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     if whole:
         poor = ~blind
     uncertain, spread = uncertain_joints(robot, std, ~blind)
+    # a winner whose solver stopped short of a minimum is no answer the tracks chose: over the full-range
+    # benchmark's runs (docs/benchmarks.md) every one that stopped so lay in a wrong basin, 40-153 degrees
+    # off, and two of them (the Kinova from above, the TALOS arm from below, weak camera, seeds 54-55)
+    # said so only in the message's first words, with joints 92-101 degrees off reported observable
+    stalled = ~blind & (not bool(np.all(winner["out"][4])))
     unit = np.where(robot.prismatic_v, "mm", "deg")
     # (no note holds "; ": the fit's message joins its notes with it, and the perspective fit splits them again)
     if whole:
@@ -434,6 +439,10 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
                      f"({noise:.2g} px, the tracks' own jitter {jitter:.2g} px) or the typical tracked point allow, "
                      "so the fit ended in a wrong basin or the model does not match the robot; the reported motion "
                      "is not known to be right")
+    if stalled.any():
+        notes.append(f"not converged: {', '.join(robot.joint_names[k] for k in np.flatnonzero(stalled))}: the "
+                     "solver stopped before it reached a minimum of its objective, so the reported motion is not "
+                     "known to be right (such fits were mostly in a wrong basin)")
     if ambiguous.any():  # the tied joints only: a poorly fitted one has its own note above
         names = [f"{robot.joint_names[k]} ({worst[k]:.0f} {unit[k]} RMS)" for k in np.flatnonzero(ambiguous)]
         notes.append(f"ambiguous: {', '.join(names)}: {len(alts)} other motion(s) fit the tracks as well "
@@ -451,12 +460,13 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
                   "tracks' jitter allows (the assumed weak-perspective camera)" if whole else
                   f"poor fit: the tracks of {', '.join(points)} are fitted {ratio.max() if poor.any() else 0:.1f} "
                   "times further off (median) than the noise or the typical tracked point allow"),
+        (stalled[k], "not converged: the solver stopped before it reached a minimum of its objective"),
         (ambiguous[k], f"tie: {len(alts)} other motion(s) fit the tracks as well and differ here by up to "
                        f"{worst[k]:.0f} {unit[k]} RMS (fit.alternatives)"),
         (uncertain[k], f"uncertain: standard deviation {spread[k]:.1f} {unit[k]} (RMS over the frames, fit.q_std): "
                        f"{UNCERTAIN_SIGMAS:g} of them exceed the {AMBIGUOUS_DEG:g} {unit[k]} claimed")) if flag)
         for k in range(robot.nv)]
-    ambiguous = ambiguous | poor | uncertain
+    ambiguous = ambiguous | poor | uncertain | stalled
     return dict(q_std=std, noise_px=noise, alternatives=alts, ambiguous=ambiguous, ambiguity_deg=worst, notes=notes,
                 reasons=reasons)
 
