@@ -189,7 +189,6 @@ base frame to the image.
 
 from __future__ import annotations
 
-import threading
 import time
 import warnings
 from pathlib import Path
@@ -198,19 +197,17 @@ import numpy as np
 
 from ..chain import KinematicChain
 from ..errors import ConvergenceWarning, DescriptionError, TrackError, is_real
-from ..progress import stage, stage_steps
-from .kinematics import RobotKinematics, _rest_distance, _roughness
+from ..progress import stage
+from .kinematics import RobotKinematics
 from .result import JointFit
-from .views import _affine_camera, _align, _camera_view, _looks_down, similarity_align
-from .compiled import imap_tasks, map_tasks
-from .solver import _huber, _motion_prior, _noise_sigma, _rms_per_frame, _robust_scale, _sequence_lm
-from .starts import _fit_3d, _initial_camera, _sequential_ik
+from .views import _align, similarity_align
+from .solver import _rms_per_frame, _sequence_lm
+from .starts import _fit_3d
 from .observability import _fill_unseen, _gauge_directions, _hold, _notes, _structural, _unseen, _weights
-from .candidates import (FACE_ON_DEG, SYMMETRY_MIRROR, TIE_VARIANCES, _base_keeping_mirror, _face_on_planes,
-                         _far_poses, _frame_ranges, _mirror_targets, _mirrored_motion, _nearest_rest_branch,
-                         _same_motion, _static_line_starts, _viterbi_reanchored)
-from .selection import _most_probable, _prefer_rest, view_side_valid
-from .uncertainty import CAMERA_MISFIT_RATIO, assess_fit, camera_misfit, track_jitter
+from .candidates import FACE_ON_DEG, _face_on_planes, _frame_ranges, _same_motion
+from .selection import _prefer_rest
+from .uncertainty import CAMERA_MISFIT_RATIO, camera_misfit, track_jitter
+from .weak_refine import WeakRefinement
 
 __all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"]
 
@@ -219,10 +216,6 @@ PERSPECTIVE_HINT = ("a camera within a few robot reaches sees the robot in persp
                     "intrinsics or image size) does not model: pass intrinsics= (a calibration), "
                     "image_size=(width, height) or perspective=True (focal length and principal point "
                     "fitted) to fit under perspective")
-
-# rounds of reflecting the best motion while a reflection wins: two sufficed for arms; a quadruped's
-# refits of its mirror went deeper for three
-REFLECTION_ROUNDS = 4
 
 
 def _positive(x: Any) -> bool:
@@ -280,6 +273,31 @@ def _inputs(rec_or_poses, urdf, chain, tracks, confidence):
         if not np.isfinite(confidence).all() or (confidence < 0).any() or (confidence > 1).any():
             raise TrackError("confidence must hold finite weights in [0, 1]")
     return poses, chain, str(urdf), tracks, confidence
+
+
+def _mirror_candidates(robot: RobotKinematics, Xz: np.ndarray, w3: np.ndarray, signs: tuple, blind: np.ndarray,
+                       gauge0: np.ndarray, free_blind: np.ndarray, free_sim: np.ndarray, unseen3: np.ndarray,
+                       transform: str, max_iter: int, max_iter_final: int, tol: float) -> tuple[list[dict], int]:
+    """Step 1, the 3D fit: the points ``Xz`` (F, J, 3; weights ``w3``) and, for each further sign in
+    ``signs``, their mirror image, each fitted with the joint angles and one transform (a similarity, a
+    rigid motion or none), the directions a turn of that transform imitates (``gauge``) held; the
+    candidates ordered by :func:`~chainspace.robot.selection._prefer_rest`, and the solver's iterations."""
+    candidates, n_iter = [], 0
+    for sign in signs:
+        X = sign * Xz
+        q, view, n_iter_a = _fit_3d(robot, X, w3, free_blind, transform, max_iter, tol,
+                                    gauge0 if transform != "none" else blind & False)
+        gauge, free = np.zeros(robot.nv, bool), free_blind
+        if transform != "none":
+            pos, jac = robot.jacobians(q)
+            gauge = _gauge_directions(pos, jac, w3, None, False) & ~blind
+            q, free = _hold(robot, q, blind, gauge, False, unseen3)
+            view = _align(robot.positions(q), X, w3, transform)  # the hold turned the robot: turn the view back
+        q, view, rn, pos, conv, it = _sequence_lm(robot, q, X, w3, view, free, free_sim, max_iter_final, tol, None)
+        n_iter += it + n_iter_a
+        candidates.append(dict(sign=sign, q=q, view=view, rms=float(np.sqrt((w3 * rn ** 2).sum() / w3.sum())),
+                               conv=conv, gauge=gauge, pos=pos))
+    return _prefer_rest(robot, candidates, "rms", blind), n_iter
 
 
 def fit_joint_angles(
@@ -433,25 +451,10 @@ def fit_joint_angles(
     _, free_blind = _hold(robot, np.broadcast_to(robot.q_rest, (F, robot.nq)), blind, blind & False, False,
                           unseen3)
     free_sim = np.array([transform != "none"] * 3 + [transform == "similarity"] + [transform != "none"] * 3)
-    candidates, n_iter = [], 0
     signs = (1.0, -1.0) if mirror and transform == "similarity" else (1.0,)
     stage("robot fit, %d frames: the 3D points (%d mirror image%s)", F, len(signs), "s" if len(signs) > 1 else "")
-    for sign in signs:
-        X = sign * Xz
-        q, view, n_iter_a = _fit_3d(robot, X, w3, free_blind, transform, max_iter, tol,
-                                    gauge0 if transform != "none" else blind & False)
-        gauge, free = np.zeros(robot.nv, bool), free_blind
-        if transform != "none":
-            pos, jac = robot.jacobians(q)
-            gauge = _gauge_directions(pos, jac, w3, None, False) & ~blind
-            q, free = _hold(robot, q, blind, gauge, False, unseen3)
-            view = _align(robot.positions(q), X, w3, transform)  # the hold turned the robot: turn the view back
-        q, view, rn, pos, conv, it = _sequence_lm(robot, q, X, w3, view, free, free_sim,
-                                                  max_iter if tracks is None or not refine else 10, tol, None)
-        n_iter += it + n_iter_a
-        candidates.append(dict(sign=sign, q=q, view=view, rms=float(np.sqrt((w3 * rn ** 2).sum() / w3.sum())),
-                               conv=conv, gauge=gauge, pos=pos))
-    candidates = _prefer_rest(robot, candidates, "rms", blind)
+    candidates, n_iter = _mirror_candidates(robot, Xz, w3, signs, blind, gauge0, free_blind, free_sim, unseen3,
+                                            transform, max_iter, max_iter if tracks is None or not refine else 10, tol)
     mirror_tied = len(candidates) > 1 and candidates[1]["rms"] <= 1.5 * candidates[0]["rms"] + 1e-12
     best = candidates[0]
     gauge = best["gauge"]
@@ -468,323 +471,32 @@ def fit_joint_angles(
         w2 = _weights(tracks, confidence)
         if (w2 > 0).sum() < 6:
             raise TrackError(f"the tracks have {int((w2 > 0).sum())} usable points; the camera needs at least 6")
-        # image-size tolerance for exact data: a thousandth of the tracks' extent (0.8 px at 800 px)
-        px_floor = 1e-3 * float(max(np.ptp(tracks[..., 0][w2 > 0]), np.ptp(tracks[..., 1][w2 > 0])))
-        unseen2 = _unseen(robot, w2)
-        never2 = unseen2 & unseen2.all(0)
-
-        timings["branch_search"] = 0.0
         # only the starts of a perspective fit with the intrinsics known (never reported, not assessed):
         # that fit chooses every frame's branch again under its own camera (refine_perspective's finish)
-        # and picks among exact twins itself (the wrist twins enter its candidates), so the choices below
+        # and picks among exact twins itself (the wrist twins enter its candidates), so the choices
         # that serve a reported weak fit are cut short (docs/benchmarks.md, Robot fit speed, stop 49)
-        starts_only = _starts is not None and not _assess
-
-        timed = threading.Lock()  # refine_2d runs on several threads (imap_tasks)
-
-        def branches(*args):  # _viterbi_reanchored, timed: the sequence-wide branch search's share
-            t = time.perf_counter()
-            out = _viterbi_reanchored(*args)
-            with timed:
-                timings["branch_search"] += time.perf_counter() - t
-            return out
-
-        def robust_cost(rn, delta):
-            return float((w2 * _huber(rn, delta)[0]).sum())
-
-        def on_one_of(q_fix, fits):  # the rule that drops a candidate: its branch search put it on one of fits
-            return any(_same_motion(robot, q_fix, k["q"]) for k in fits)
-
-        def refine_2d(c, known):
-            # the refined fit of candidate c (with its iterations, ``n_iter``), and ``fixes``: per round of the
-            # branch search, the motion it put c on and the iterations spent up to there (``refined`` drops c
-            # at the first round on a fit refined before it); only ``fixes`` where a round put it on one of
-            # ``known`` (it is dropped then)
-            n_iter, fixes = 0, []
-            P0, _ = _affine_camera(c["pos"], tracks, w2, per_frame)
-            pos, jac = robot.jacobians(c["q"])
-            g2 = (_gauge_directions(pos, jac, w2, P0, per_frame) | c["gauge"]) & ~blind
-            q, free = _hold(robot, c["q"], blind, g2 if per_frame else c["gauge"], per_frame, unseen2)
-            # with the smoothness prior, a direction unseen in some frames follows its neighbours there
-            # (one never seen stays held: the prior alone would leave its level and trend free)
-            free_prior = _hold(robot, c["q"], blind, g2 if per_frame else c["gauge"], per_frame, never2)[1]
-            view = c["camera0"] if "camera0" in c else _camera_view(c["pos"], tracks, w2, per_frame)
-            # per-frame IK on the tracks with this camera (robust far from the solution), then all together
-            if not c.get("whole_path"):  # a start from its first frame: rough elsewhere
-                q = _sequential_ik(robot, tracks, w2, view, free, q[0], c["gauge"])
-            for _ in range(4):  # alternate the closed-form camera(s) with per-frame IK
-                view = _camera_view(robot.positions(q), tracks, w2, per_frame)
-                q, _, _, _, _, it = _sequence_lm(robot, q, tracks, w2, view, free, np.zeros(6, bool), 10, 1e-8,
-                                                 None)
-                n_iter += it
-            pos = robot.positions(q)
-            rn0 = np.linalg.norm(view.apply(pos)[0] - np.nan_to_num(tracks), axis=-1)
-            delta = (_robust_scale(rn0, w2, px_floor) if loss_scale_px is None else
-                     (float(loss_scale_px) if loss_scale_px > 0 else None))
-            out = _sequence_lm(robot, q, tracks, w2, view, free, np.ones(6, bool), max_iter, tol, delta)
-            # then the branch of every frame, chosen for the whole sequence: twice, once for starts only
-            # (with no pass there the Kinova from above, full ranges, seed 31, started the perspective fit
-            # from a near mirror image and ended there, joint 2 off by 47 degrees, reported observable)
-            for _ in range(1 if starts_only else 2):
-                sig = max(_noise_sigma(out[2], w2), px_floor)
-                q_fix, view_fix = branches(robot, out[0], tracks, w2, out[1], free, sig, c["gauge"],
-                                                      per_frame, blind, unseen2)
-                fixes.append((q_fix, n_iter + out[-1]))
-                if on_one_of(q_fix, known):
-                    return dict(fixes=fixes)
-                if _same_motion(robot, q_fix, out[0]):
-                    break
-                new = _sequence_lm(robot, q_fix, tracks, w2, view_fix, free, np.ones(6, bool), max_iter, tol, delta)
-                worst_old = np.nanmax(_rms_per_frame(out[2], w2))
-                better = robust_cost(new[2], delta) <= 0.99 * robust_cost(out[2], delta) and \
-                    np.nanmax(_rms_per_frame(new[2], w2)) <= 1.1 * worst_old + px_floor
-                # a tie of the tracks (a wrist whose tracked points lie in one plane, mirrored in depth):
-                # the continuous path wins, and of two alike continuous ones the one nearer the rest pose
-                tie = robust_cost(new[2], delta) <= 1.05 * robust_cost(out[2], delta)
-                rough_new, rough_old = _roughness(robot, new[0]), _roughness(robot, out[0])
-                smoother = rough_new < 0.5 * rough_old and rough_old - rough_new > 1.0  # a jump gone
-                nearer = rough_new <= 1.5 * rough_old + 1.0 and \
-                    _rest_distance(robot, new[0], new[0][:1], c["gauge"]).mean() < \
-                    _rest_distance(robot, out[0], out[0][:1], c["gauge"]).mean() - 0.1
-                if not (better or tie and (smoother or nearer)):
-                    break  # only a better fit of the tracks, or an equal fit by a smoother path or nearer rest
-                out = new
-            # free where unseen too: a branch held there could not turn with the rest of its path
-            q_rest_branch = out[0] if starts_only else _nearest_rest_branch(robot, out[0], free_prior)
-            if q_rest_branch is not out[0]:
-                out = _sequence_lm(robot, q_rest_branch, tracks, w2, out[1], free, np.ones(6, bool), max_iter, tol,
-                                   delta)
-            return dict(cost=float(np.sqrt((w2 * out[2] ** 2).sum() / w2.sum())), sse=float((w2 * out[2] ** 2).sum()),
-                        n_obs=2 * int((w2 > 0).sum()), out=out, c=c, g2=g2,
-                        q=out[0], gauge=g2, down=_looks_down(out[1]), free=free, free_prior=free_prior, delta=delta,
-                        fixes=fixes, n_iter=n_iter + out[-1])
-
-        side_ok, side_why = view_side_valid(robot)  # legs hanging below their base: the camera side decides nothing
-        base_mirror = _base_keeping_mirror(robot, (w2 > 0).any(0))
-        # where the side decides nothing, the mirror image is searched far in joint space too, unless this fit
-        # only gives the perspective fit its starts: perspective settles the mirror (and its starts for a
-        # quadruped, Solo12 at seed 0 from below, led one leg into a wrong basin with the far mirrors among them)
-        legs_mirror = not side_ok and _starts is None
-
-        def seen_from_wrong_side(r):
-            return side_ok and view_from is not None and (r["down"] < -0.02 if view_from == "above" else
-                                                          r["down"] > 0.02)
-
-        def refined(starts, known=(), step=None):
-            # the fits of those starts that are new motions, in order: a start is dropped where a round of
-            # its branch search puts it on a fit in ``known`` or refined before it (both mirror starts of an
-            # arm whose mirror image is no pose of it end on one motion, which would be refined, searched and
-            # smoothed twice). On several threads a start is refined while those before it may still run, so
-            # it stops early only on the ones it sees done (``seen``) and is dropped here as if refined after
-            # them all: the same fits and counts as on one thread
-            nonlocal n_iter
-            new: list[dict] = []
-            seen = list(known)
-            for r in imap_tasks(robot, lambda c: refine_2d(c, seen), starts, step):
-                dropped_at = next((it for q_fix, it in r["fixes"] if on_one_of(q_fix, seen)), None)
-                n_iter += r["n_iter"] if dropped_at is None else dropped_at
-                if dropped_at is None:
-                    new.append(r)
-                    seen.append(r)
-            return new
-
-        # both mirror images: a poor reconstruction may favour the wrong one in 3D
-        results = refined(candidates, step=stage_steps("robot fit: refining on the tracks, candidate", len(candidates)))
-        if not per_frame and transform == "similarity" and min(r["cost"] for r in results) > 3 * px_floor:
-            # the tracks are fitted poorly from the reconstruction's start: also a camera found from the
-            # tracks alone (costly, so only then)
-            v2, q2 = _initial_camera(robot, tracks, w2, _hold(robot, candidates[0]["q"], blind, candidates[0]["gauge"],
-                                                              False)[1])
-            alt = refined([dict(candidates[0], q=q2, pos=robot.positions(q2), camera0=v2)], results)
-            if alt and alt[0]["cost"] * 1.5 < min(r["cost"] for r in results):  # clearly better, not a tie
-                results += alt
-        def tracks_tie(a, b):
-            # refined fits: b is as good as a unless its squared residuals exceed a's by more than
-            # 25 noise variances (a likelihood ratio test, noise estimated from a's residuals)
-            var = max(a["sse"] / max(a["n_obs"], 1), (0.05 * px_floor) ** 2)
-            return b["sse"] - a["sse"] <= TIE_VARIANCES * var
-
-        def order(rs):
-            # among the fits the tracks cannot tell apart: seen from the right side first, then the
-            # one nearer the rest pose
-            best_fit = min(rs, key=lambda r: r["sse"])
-            n_tied = sum(tracks_tie(best_fit, r) for r in rs)
-            rs = _prefer_rest(robot, rs, "cost", blind, tie=tracks_tie)
-            rs[:n_tied] = sorted(rs[:n_tied], key=seen_from_wrong_side)
-            return rs, n_tied > 1
-
-        results, mirror_tied = order(results)
-        far_found: dict[tuple[int, bool], tuple] = {}
-        far_lock = threading.Lock()
-
-        def far_mirrors(r, up_to_links):
-            # r's points mirrored by the reflection that keeps the base points in place (an arm's vertical
-            # plane, a quadruped's trunk plane: candidates._base_keeping_mirror), as poses wherever they
-            # lie in joint space: whole, or (up_to_links) with each link and all beyond it mirrored back in
-            # depth under r's camera (the same image: the mirror of the arm up to that link). Searched
-            # once per motion (r kept with its result, so that its id is not reused).
-            key = (id(r), up_to_links)
-            with far_lock:  # (a round's two reflections ask for the same searches at once: made once)
-                if key not in far_found:
-                    X = r["out"][3]
-                    targets = _mirror_targets(robot, X, r["out"][1]) if up_to_links else [X]
-                    far_found[key] = (r, _far_poses(robot, r["out"][0], [base_mirror(m) for m in targets],
-                                                    free_blind) if base_mirror is not None else [])
-                return far_found[key][1]
-
-        def reflection(r, M, up_to_links=True):
-            # r's motion reflected by M (3 x 3, base frame), fitted in 3D from the refined motion (a far
-            # better start than the reconstruction): candidates to refine on the tracks, the first its fit
-            # (the mirrors up to each link after it only with ``up_to_links``), and the iterations spent
-            # (returned, not counted here: a round's two reflections are made on two threads)
-            X_alt = np.einsum("ij,fkj->fki", M, r["out"][3])
-            q_a, view_a, it_a = _fit_3d(robot, X_alt, w3, free_blind, transform, max_iter, tol, gauge0)
-            spent = [it_a]
-
-            def fitted(q_s):
-                q_s, free_a = _hold(robot, q_s, blind, r["c"]["gauge"], False, unseen3)
-                view_a = _align(robot.positions(q_s), X_alt, w3, transform)
-                out = _sequence_lm(robot, q_s, X_alt, w3, view_a, free_a, free_sim, 20, tol, None)
-                spent.append(out[5])
-                return out
-
-            def candidate(q_s, pos, conv, **kw):
-                return dict(sign=-r["c"]["sign"], q=q_s, pos=pos, gauge=r["c"]["gauge"], conv=conv, **kw)
-
-            best, partial, whole = fitted(q_a), [], False
-            # (the starts of a perspective fit with K known search them for every arm's motion, the side
-            # it was told being no rule there: the Kinova from below, full ranges, pinhole, seed 48, told
-            # "above" by default, ended with joints 2 and 3 19 and 112 degrees off, reported observable)
-            far_side = seen_from_wrong_side(r) or legs_mirror or (starts_only and side_ok)
-            if (w3 * best[2]).max() > 1e-3 * robot.reach() and far_side:
-                # X_alt is a robot's motion reflected: where the 3D fit did not reach it and r is seen
-                # from the wrong side (the mirrors of one seen from the right side lose to it), or the
-                # side decides nothing (legs_mirror), the poses that take r's points mirrored (every reflection of
-                # the points is the base-keeping mirror turned: M times that mirror is a rotation). A
-                # quadruped (Solo12, full ranges, weak camera) ended on the exact mirror of its truth, every
-                # joint 12-154 degrees off and none flagged, its legs' mirror half a turn away. A UR10 seen
-                # from below had the exact mirror of the winner as its truth, five joints 40-137 degrees
-                # away, and was reported seen from above against the side it was told; a Kinova arm the
-                # mirror up to its wrist (the hand's points at the winner's depths), three joints 11-149
-                # degrees away.
-                partial = far_mirrors(r, True) if up_to_links else []
-                for q_s in far_mirrors(r, False):
-                    far = fitted(q_s)
-                    if (w3 * far[2] ** 2).sum() < (w3 * best[2] ** 2).sum():
-                        best, whole = far, legs_mirror
-            fits = [(best, whole)]
-            exact = _mirrored_motion(robot, r["out"][0], base_mirror) if base_mirror is not None else None
-            if exact is not None:
-                # a mirror-symmetric robot's mirror image, joint by joint, first where it fits the mirrored
-                # points at least as well: the 3D fit reaches them frame by frame, on any branch of the wrist
-                # in each frame, and the motion prior's refit of such a path can end in another basin. The
-                # milling arm from below (full ranges, seed 33): the winner seen from above, its reflected
-                # start's wrist jumping between branches, smoothed 100 times higher; the first joint reported
-                # 50 degrees off, unflagged. The 3D fit's own path stays a candidate: from a poor winner it
-                # can lead to a better basin than the exact mirror of that winner (the Z1 from below, seed 26)
-                mirrored = fitted(exact)
-                if not _same_motion(robot, mirrored[0], best[0]):
-                    first = (w3 * mirrored[2] ** 2).sum() <= (w3 * best[2] ** 2).sum()
-                    fits.insert(0 if first else 1, (mirrored, legs_mirror))
-            # the partial mirrors are whole paths through every frame: refined from all of them, since
-            # the per-frame IK from their first frame drifted onto the hand's other branches (the Kinova);
-            # so is a quadruped's whole mirror (per-frame IK drifted onto its legs' other branches; an
-            # arm's whole mirror refined as a whole path ended in a wrong basin of the xArm7's wrist)
-            return [candidate(f[0], f[3], f[4], whole_path=whole_f) for f, whole_f in fits] + \
-                [candidate(q_s, robot.positions(q_s), True, whole_path=True) for q_s in partial], sum(spent)
-
-        def depth_mirror(r):
-            R0 = r["out"][1].R[0] if not per_frame else r["out"][1].R.mean(0)
-            return R0.T @ np.diag([1.0, 1.0, -1.0]) @ R0
-
-        def rebranch(r, out):
-            sig = max(_noise_sigma(out[2], w2), px_floor)
-            return branches(robot, out[0], tracks, w2, out[1], r["free"], sig, r["c"]["gauge"], per_frame,
-                                       blind, unseen2)
-
-        def reflected_start(r):
-            # r's depth mirror image, a start for the smoothed fit (held as the refinement holds)
-            nonlocal n_iter
-            made, spent = reflection(r, depth_mirror(r), up_to_links=False)
-            n_iter += spent
-            c = made[0]
-            q = _hold(robot, c["q"], blind, c["gauge"], False, unseen2)[0]
-            return dict(r, c=c, q=q, free_prior=_hold(robot, q, blind, c["gauge"], False, never2)[1],
-                        view=_camera_view(robot.positions(q), tracks, w2, False))
-
-        if transform == "similarity":
-            # Two reflections keep every track: the depth mirror (weak perspective), and for a robot
-            # built mirror-symmetric (its tracked points in one vertical plane at rest) the mirror about
-            # that plane, seen through the mirrored camera. The best motion is tried under both; when a
-            # reflection wins (a better fit found from the reflected start), it is reflected in turn,
-            # since its own mirror image may be the one seen from the right side, or tie with it (a
-            # quadruped's legs: each round's refit went deeper, hundreds of noise variances, for three rounds).
-            reflected: list[dict] = []
-            while len(reflected) < REFLECTION_ROUNDS and not any(results[0] is r for r in reflected):
-                r0 = results[0]
-                reflected.append(r0)
-                stage(f"robot fit: refining the best fit's two reflections on the tracks (round %d of at most "
-                      f"{REFLECTION_ROUNDS})", len(reflected))
-                made = map_tasks(robot, lambda M: reflection(r0, M), (depth_mirror(r0), SYMMETRY_MIRROR))
-                n_iter += sum(spent for _, spent in made)
-                alts = refined([c for cs, _ in made for c in cs], results)
-                results, mirror_tied = order(results + alts)
-            if not per_frame:
-                # the camera's freedom about the base's line of tracked points: the best motion turned about
-                # it, or mirrored in depth (whole, or up to one link) and turned back onto the base points
-                # (candidates._static_line_starts); the basins that fit as well or better, refined as the rest.
-                # When one of them wins it is turned in turn, as a winning reflection is reflected: the TALOS
-                # arm from above (weak camera, full ranges, seed 45) went from a poor lead to the true motion
-                # turned half a turn about the line (arm_left_2 57, arm_left_3 172 degrees off, reported
-                # observable), and only that winner's own turn leads back to the truth
-                t_s = time.perf_counter()
-                turned_from: list[dict] = []
-                while len(turned_from) < REFLECTION_ROUNDS and not any(results[0] is r for r in turned_from):
-                    r0 = results[0]
-                    turned_from.append(r0)
-                    lead = dict(q=r0["out"][0], view=r0["out"][1], pos=r0["out"][3], gauge=r0["gauge"],
-                                free=r0["free"], delta=r0["delta"], sse=r0["sse"], var=r0["sse"] / max(r0["n_obs"], 1))
-                    turned = refined((dict(r0["c"], q=q_s, pos=robot.positions(q_s), camera0=v_s)
-                                      for q_s, v_s in _static_line_starts(robot, lead, tracks, w2, TIE_VARIANCES)),
-                                     results)
-                    if turned:
-                        results, mirror_tied = order(results + turned)
-                timings["static_line"] = time.perf_counter() - t_s
-        r = results[0]
+        weak = WeakRefinement(robot, tracks, w2, w3, blind, free_blind, gauge0, free_sim, unseen3,
+                              per_frame=per_frame, transform=transform, max_iter=max_iter, tol=tol,
+                              loss_scale_px=loss_scale_px, view_from=view_from, for_starts=_starts is not None,
+                              starts_only=_starts is not None and not _assess, timings=timings)
+        side_ok, unseen2 = weak.side_ok, weak.unseen2
+        results, mirror_tied = weak.search(candidates)
         timings["refine_candidates"] = time.perf_counter() - t1
-        sigma = _noise_sigma(r["out"][2], w2)
-        prior, scored = None, []
-        if accel_std is not None and F >= 3 and not per_frame and sigma > 1e-6:
-            # joint accelerations ~ N(0, accel_std^2) against pixel noise sigma: the prior's weight
-            mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
-            smoothed = True
-            decay_frames = np.inf if speed_decay_s is None else speed_decay_s * float(fps)
-            prior = _motion_prior(unseen2, mu, decay_frames)
-            stage("robot fit: choosing among %d fits with the motion prior", len(results))
-            r, mirror_tied, it = _most_probable(robot, results, tracks, w2, prior,
-                                                max(sigma, px_floor), max_iter, tol, seen_from_wrong_side,
-                                                reflected_start, rebranch, scored, reflect_always=legs_mirror)
-            n_iter += it
+        r, results, mirror_tied, prior, sigma, scored = weak.choose(results, mirror_tied, accel_std, fps,
+                                                                    speed_decay_s)
+        smoothed = prior is not None
+        if smoothed:
             timings["smoothed_choice"] = time.perf_counter() - t1 - timings["refine_candidates"]
-            results = [r] + [x for _, x in sorted(scored, key=lambda sx: sx[0]) if x is not r]
         if _starts is not None:  # the winner first, then the alternatives: the perspective fit's starts
             _starts.extend(dict(q=x["out"][0], view=x["out"][1], free=x["free"], free_prior=x["free_prior"],
-                                delta=x["delta"], gauge=x["g2"], blind=blind, px_floor=px_floor) for x in results)
+                                delta=x["delta"], gauge=x["g2"], blind=blind, px_floor=weak.px_floor)
+                           for x in results)
         (q, view, rn, pos_base, conv2, _), best, gauge = r["out"], r["c"], r["g2"]
-        # ---- how sure: per-joint standard deviations and the motions that tie (chainspace.robot.uncertainty)
-        if smoothed:
-            tie_var = max(sigma, px_floor) ** 2
-        else:  # refined fits compared on the tracks alone (as tracks_tie does)
-            tie_var = max(r["sse"] / max(r["n_obs"], 1), (0.05 * px_floor) ** 2)
-            scored = [(x["sse"], x) for x in results]
         t2 = time.perf_counter()
-        if _assess:
-            stage("robot fit: the joint angles' standard deviations and alternatives")
         # (not for the weak start of a pinhole fit with known intrinsics, which is assessed itself)
-        trust = assess_fit(robot, r, scored, tie_var, tracks, w2, prior, blind, gauge, seen_from_wrong_side,
-                           side_why if view_from is not None else "", search=search_ties,
-                           camera_assumed=_starts is None) if _assess else {}
+        trust = weak.assess(r, results, prior, sigma, scored, gauge, search_ties, _starts is None) if _assess else {}
         timings["uncertainty"] = time.perf_counter() - t2
+        n_iter += weak.n_iter
         converged = conv2  # the 3D stage only started this one
         residual_px = _rms_per_frame(rn, w2)
         cams = view.matrices()
