@@ -303,42 +303,56 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     deviation (estimated focal only), and ``measured`` (False: perspective not measurable; see
     ``reason``).
     """
-    fit_focal = K is None
-    fit_centre = fit_focal and image_size is None
-    if fit_centre:  # no image: the principal point starts at the centre of the tracks and is fitted too
-        seen = (w > 0) & np.isfinite(tracks).all(-1)
-        lo, hi = tracks[seen].min(0), tracks[seen].max(0)
-        c = 0.5 * (lo + hi)
-        # focal starts as for an image twice the tracks' extent (a robot over half the frame); from the
-        # extent alone, so that shifting every track changes nothing but the principal point
-        wpx = 2.0 * float((hi - lo).max())
-    elif fit_focal:
-        wpx, hpx = (float(v) for v in image_size)
-        c = np.array([wpx / 2, hpx / 2])
-    if fit_focal:
-        f_inits = [wpx * k for k in (0.5, 0.7, 1.0, 1.4, 2.0, 4.0)]
-        aspect = 1.0
-    else:
-        K = np.asarray(K, float)
-        c = K[:2, 2].copy()
-        f_inits = [float(K[0, 0])]
-        aspect = float(K[0, 0] / K[1, 1])
-    # square pixels for the solver: rows scaled to the focal of the columns
-    tr = tracks.copy()
-    tr[..., 1] = c[1] + (tr[..., 1] - c[1]) * aspect
-    F = len(tracks)
-    n_obs = 2 * int((w > 0).sum())
-    fits = []
+    return PerspectiveRefinement(robot, tracks, w, K, image_size, accel_std, fps, speed_decay_s, unseen, max_iter,
+                                 tol, smooth).run(starts, weak_sse, search_ties, weak_fits)
 
-    def contend(new):
+
+class PerspectiveRefinement:
+    """The perspective fit of ``robot`` to ``tracks`` (F, J, 2) px, weights ``w`` (F, J), through one static
+    pinhole camera: ``K`` known, or None (the focal fitted; with ``image_size`` None the principal point
+    too). Holds the fits made so far (``fits``, best first); :meth:`run` makes them from the weak starts."""
+
+    def __init__(self, robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, K: np.ndarray | None, image_size,
+                 accel_std: float | None, fps: float, speed_decay_s: float | None, unseen: np.ndarray,
+                 max_iter: int, tol: float, smooth: bool):
+        self.robot, self.w, self.unseen, self.max_iter, self.tol = robot, w, unseen, max_iter, tol
+        self.accel_std, self.fps, self.speed_decay_s, self.smooth = accel_std, fps, speed_decay_s, smooth
+        self.K = None if K is None else np.asarray(K, float)
+        self.fit_focal = K is None
+        self.fit_centre = self.fit_focal and image_size is None
+        if self.fit_centre:  # no image: the principal point starts at the centre of the tracks and is fitted too
+            seen = (w > 0) & np.isfinite(tracks).all(-1)
+            lo, hi = tracks[seen].min(0), tracks[seen].max(0)
+            self.c = 0.5 * (lo + hi)
+            # focal starts as for an image twice the tracks' extent (a robot over half the frame); from the
+            # extent alone, so that shifting every track changes nothing but the principal point
+            wpx = 2.0 * float((hi - lo).max())
+        elif self.fit_focal:
+            wpx, hpx = (float(v) for v in image_size)
+            self.c = np.array([wpx / 2, hpx / 2])
+        if self.fit_focal:
+            self.f_inits = [wpx * k for k in (0.5, 0.7, 1.0, 1.4, 2.0, 4.0)]
+            self.aspect = 1.0
+        else:
+            self.c = self.K[:2, 2].copy()
+            self.f_inits = [float(self.K[0, 0])]
+            self.aspect = float(self.K[0, 0] / self.K[1, 1])
+        # square pixels for the solver: rows scaled to the focal of the columns
+        self.tr = tracks.copy()
+        self.tr[..., 1] = self.c[1] + (self.tr[..., 1] - self.c[1]) * self.aspect
+        self.n_obs = 2 * int((w > 0).sum())
+        self.fits: list[dict] = []
+
+    def contend(self, new: list[dict]) -> None:
         """New fits join the others, ordered by objective. A pinhole projects y and -y alike: a fit with the
         robot behind its camera (the true one's twin through the camera centre, mirrored about the robot's
         symmetry plane) fits exactly as well and is no camera, so it is dropped while one in front is left."""
+        fits = self.fits
         fits.extend(new)
         fits[:] = [r for r in fits if _in_front(r)] or fits
         fits.sort(key=lambda r: r["objective"])
 
-    def finish(q, pv, st, n_iter):
+    def finish(self, q: np.ndarray, pv: _PinholeView, st: dict, n_iter: int) -> list[dict]:
         """LM on everything from (q, pv), the branch of every frame re-chosen under this camera, then
         smoothed: the fits of one start, its own first, then the paths the branch choice left that fit
         the tracks within the tie tolerance (smoothed alike: a tie is then reported, not hidden).
@@ -349,13 +363,14 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
         variances, 0.2 %) and was thrown away; the path kept smoothed to joint6 5.9 degrees RMS off
         (21.8 at most), 17 noise variances above the true motion's minimum, which the re-chosen path
         smooths to (joint6 1.2 degrees), and nothing was flagged."""
+        robot, tr, w, max_iter, tol = self.robot, self.tr, self.w, self.max_iter, self.tol
         delta, ones = st["delta"], np.ones(pv.n_params, bool)
         out = _sequence_lm(robot, q, tr, w, pv, st["free"], ones, max_iter, tol, delta)
         left = []
         for _ in range(2):  # the branch of every frame, chosen for the whole sequence under this camera
             sig = max(_noise_sigma(out[2], w), st["px_floor"])
             q_fix, view_fix = _viterbi_reanchored(robot, out[0], tr, w, out[1], st["free"], sig, st["gauge"], False,
-                                                  st["blind"], unseen)
+                                                  st["blind"], self.unseen)
             if np.abs(_wrapped(robot, q_fix - out[0])).max() < 0.05:
                 break
             new = _sequence_lm(robot, q_fix, tr, w, view_fix, st["free"], ones, max_iter, tol, delta)
@@ -365,11 +380,7 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
             if gain <= TIE_VARIANCES * sig ** 2:
                 left.append(out)
             out = new
-        prior = None
-        if smooth and accel_std is not None and F >= 3:
-            sigma = max(_noise_sigma(out[2], w), 1e-3)
-            mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2
-            prior = _motion_prior(unseen, mu, np.inf if speed_decay_s is None else speed_decay_s * float(fps))
+        prior = self._prior(out)
         fitted = []
         for o in [out] + left:  # one prior for all: their objectives are compared
             objective = _robust(o[2], w, delta)
@@ -382,20 +393,30 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
                                prior=prior, start=st))
         return fitted
 
-    def camera_start(st, focals):
+    def _prior(self, out: tuple):
+        """The motion prior for a fit whose plain solve is ``out`` (its noise sets the weight), or None."""
+        if not (self.smooth and self.accel_std is not None and len(self.tr) >= 3):
+            return None
+        sigma = max(_noise_sigma(out[2], self.w), 1e-3)
+        mu = sigma ** 2 / (float(self.accel_std) / float(self.fps) ** 2) ** 2
+        decay_frames = np.inf if self.speed_decay_s is None else self.speed_decay_s * float(self.fps)
+        return _motion_prior(self.unseen, mu, decay_frames)
+
+    def camera_start(self, st: dict, focals: list[float]) -> tuple:
         """The camera alone from the start's pose (the weak camera's, and with K known PnP's), then
         per-frame IK under it, alternated (the focal held): (cost, camera, q, focal, iterations) of the
         camera start and focal that fit best. The weak start's motion can be far off under perspective,
         so the focal and the camera are chosen after the IK."""
+        robot, tr, w = self.robot, self.tr, self.w
         q0, delta = st["q"], st["delta"]
         pos0 = robot.positions(q0)
         none_free = np.zeros_like(st["free"])
         ones_k, n_iter, best_cam = np.ones(6, bool), 0, None
         for f0 in focals:
-            pnp = None if fit_focal else _pnp_camera(pos0, tr, w, f0, c)
+            pnp = None if self.fit_focal else _pnp_camera(pos0, tr, w, f0, self.c)
             # a turned start: PnP's camera alone where there is one (its weak camera is re-fitted, not measured)
             cams = [pnp] if "turn_of" in st and pnp is not None else \
-                [_pinhole_from_weak(st["view"], pos0, f0, c, False), pnp]
+                [_pinhole_from_weak(st["view"], pos0, f0, self.c, False), pnp]
             for pv in cams:
                 if pv is None:
                     continue
@@ -414,146 +435,182 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
         twin = None if _in_front(dict(view=pv, pos=robot.positions(q))) else _pinhole_twin(robot, q, pv, st["free"])
         return (cost, pv, q, f0, n_iter) if twin is None else (cost, twin[1], twin[0], f0, n_iter)
 
-    # every start through the camera stage (the first over the focal guesses; the others reuse its focal),
-    # then the weak fit's winner and the others of lowest cost there refined in full (MAX_STARTS in all)
-    # each start also turned about the first joint's axis: the weak camera's guess of how far round it stands
-    starts = [_pinhole_gauge(robot, st, w, unseen) for st in starts]
-    given = [st["q"] for st in starts]
-    starts = list(starts) + [dict(st, q=q, view=_camera_view(robot.positions(q), tr, w, False), turn_of=st)
-                             for st in starts for q in _base_turns(robot, st["q"])]
-    def refine_in_full(k):
-        st, (_, pv, q, _, n_iter) = starts[k], screened[k]
+    def refine_in_full(self, st: dict, screened: tuple) -> list[dict]:
+        """A start refined in full from its camera stage's result ``screened`` (:meth:`camera_start`): with
+        the focal unknown, per-frame IK alternated with the camera and its focal first; then :meth:`finish`."""
+        robot, tr, w = self.robot, self.tr, self.w
+        _, pv, q, _, n_iter = screened
         none_free = np.zeros_like(st["free"])
-        pv = replace(pv, fit_focal=fit_focal, fit_centre=fit_centre)
-        if fit_focal:
+        pv = replace(pv, fit_focal=self.fit_focal, fit_centre=self.fit_centre)
+        if self.fit_focal:
             ones = np.ones(pv.n_params, bool)
             for _ in range(3):  # per-frame IK under the camera, alternated with the camera and its focal
                 q, _, _, _, _, it = _sequence_lm(robot, q, tr, w, pv, st["free"], ~ones, 10, 1e-8, None)
                 pv = _sequence_lm(robot, q, tr, w, pv, none_free, ones, 10, 1e-10, st["delta"])[1]
                 n_iter += it
-        return finish(q, pv, st, n_iter)
+        return self.finish(q, pv, st, n_iter)
 
-    def tied(out, lead, var0):
+    def tied(self, out: tuple, lead: dict, var0: float) -> bool:
         """Whether a plain fit (:func:`_sequence_lm`'s returns) ends within the tie tolerance of the lead, or
         below it."""
-        return _robust(out[2], w, lead["delta"]) - _robust(lead["rn"], w, lead["delta"]) <= TIE_VARIANCES * var0
+        return _robust(out[2], self.w, lead["delta"]) - _robust(lead["rn"], self.w, lead["delta"]) <= \
+            TIE_VARIANCES * var0
 
-    def mirror_start(q_m, lead):
+    def mirror_start(self, q_m: np.ndarray, lead: dict) -> tuple:
         """A plain fit of the mirror image q_m of the lead's motion from a camera of its own (the camera stage
         of a start): where perspective is strong, the mirrored camera (:func:`_pinhole_twin`) is too far
         from the mirror image's to lead to its basin. The Kinova from above (full ranges, seed 31), the fit
         the true motion's near mirror image: from the mirrored camera 1644 px^2, from its own 640, the
         lead 798."""
-        st = dict(lead["start"], q=q_m, view=_camera_view(robot.positions(q_m), tr, w, False))
-        _, pv, q, _, _ = camera_start(st, [float(lead["view"].f)])
-        pv = replace(pv, fit_focal=fit_focal, fit_centre=fit_centre)
-        return _sequence_lm(robot, q, tr, w, pv, lead["free"], np.ones(pv.n_params, bool), max_iter, tol,
-                            lead["delta"])
+        st = dict(lead["start"], q=q_m, view=_camera_view(self.robot.positions(q_m), self.tr, self.w, False))
+        _, pv, q, _, _ = self.camera_start(st, [float(lead["view"].f)])
+        pv = replace(pv, fit_focal=self.fit_focal, fit_centre=self.fit_centre)
+        return _sequence_lm(self.robot, q, self.tr, self.w, pv, lead["free"], np.ones(pv.n_params, bool),
+                            self.max_iter, self.tol, lead["delta"])
 
-    early = fit_focal and weak_fits  # the first start may settle that there is no perspective (docstring)
-    step = stage_steps("robot fit, perspective: the camera from start", len(starts))
-    step(0)
-    screened, first = [camera_start(starts[0], f_inits)], []  # the first over the focal guesses
-    chosen_f = screened[0][3] if fit_focal else f_inits[0]
-    if early:
-        first = refine_in_full(0)
-        lead = min(first, key=lambda r: r["objective"])
-        measured = _measured_perspective(robot, lead, tr, w, weak_sse, n_obs, fit_centre)
-        if not measured["measured"]:
-            return dict(lead, **measured)
-    # the others at its focal
-    screened += map_tasks(robot, lambda st: camera_start(st, [chosen_f]), starts[1:], lambda i: step(i + 1))
-    # the turned starts compete for a slot of their own: on the xArm7 from below (full ranges, seed 0) one of
-    # lower camera-stage cost pushed the true basin's start out, and the fit ended 151 degrees off
-    by_cost = sorted(range(1, len(starts)), key=lambda k: screened[k][0])
-    keep = [0] + [k for k in by_cost if k < len(given)][:MAX_STARTS - 1] + [k for k in by_cost if k >= len(given)][:1]
-    # (a start that the camera stage brought onto one kept before it, turned about the gauge joint, is refined
-    # into that one's basin: the milling arm, 300 frames, K known: all three turns of the winner's start came
-    # back onto it, and the one kept ended on the winner's objective to 2e-10 after 1 s of refining; the
-    # xArm7, 100 frames, on a fit 0.26 degrees from the winner's on joint5)
-    keep = [k for i, k in enumerate(keep) if not any(_turned_copy(robot, screened[j], screened[k], starts[k]["gauge"])
-                                                    for j in keep[:i])]
-    step = stage_steps("robot fit, perspective: refining in full, start", len(keep))
-    for r in map_tasks(robot, lambda k: first if k == 0 and early else refine_in_full(k), keep, step):
-        fits += r
-    contend([])
-    # six searches, each a step of the stage's log (a count and the time left: 3.5 s in the demo at 300 frames)
-    other = stage_steps("robot fit, perspective: other minima (a searched camera, grafts, twins, turns about the "
-                        "base's line, windows, turned joints), search", 6)
-    other(0)
-    searched = _searched_start(robot, fits[0], tr, w, starts[0], K, n_obs, weak_sse)
-    if searched is not None:  # one more contender, on the objective like the others
-        contend(finish(*searched, starts[0], 0))
-    # (the given starts only: a turned start's tails beyond the first joint are its original's)
-    other(1)
-    grafted = _grafted(robot, fits[0], given + [r["q"] for r in fits[1:]], tr, w)
-    if grafted is not None:
-        contend(finish(grafted, fits[0]["view"], fits[0]["start"], 0))
-    # the winner's mirror image, facing the camera as it does, and the winner turned about the first joint's
-    # axis with the camera turned to match: its twins, which no start need reach (each refitted in full only
-    # when a plain fit of it ties with the winner's: a big robot's mirror twin is far off)
-    other(2)
-    lead = fits[0]
-    mirror = _pinhole_twin(robot, lead["q"], lead["view"], lead["free"], NEAR_MIRROR)
-    var0 = _noise_variance(lead, w)
-    twins = [(tw, tw is mirror) for tw in ([] if mirror is None else [mirror]) +
-             _turned_twins(robot, lead["q"], lead["view"])]
-    for (q_tw, v_tw), is_mirror in twins:
-        if any(_same_motion(robot, q_tw, r["q"]) for r in fits):
-            continue
-        plain = _sequence_lm(robot, q_tw, tr, w, v_tw, lead["free"], np.ones(v_tw.n_params, bool), max_iter, tol,
-                             lead["delta"])
-        if is_mirror and not tied(plain, lead, var0):
-            plain = min(plain, mirror_start(q_tw, lead), key=lambda o: _robust(o[2], w, lead["delta"]))
-        if tied(plain, lead, var0):
-            fits += finish(plain[0], plain[1], lead["start"], plain[5])
-    contend([])
-    # the winner turned about the line of the base's tracked points, where no joint turns about it, with the
-    # camera turned to match (candidates._static_line_starts): the camera's freedom about that line is bounded
-    # only by whether the robot can make the turned motion, and no start need lie in the basin it leads to
-    other(3)
-    lead = fits[0]
-    for r in map_tasks(robot, lambda s: finish(*s, lead["start"], 0), _static_line_starts(
-            robot, dict(lead, gauge=lead["start"]["gauge"], var=_noise_variance(lead, w)), tr, w, TIE_VARIANCES)):
-        contend(r)
-    # the winner's path moved on windows along what the tracks fix least: minima that differ from it on a
-    # window only, which no whole-sequence candidate is (a tie then reported, or a lower one the winner)
-    other(4)
-    lead = fits[0]
-    contend([r for r in _weak_windows(robot, lead, tr, w, fps) if not _same_motion(robot, r["q"], lead["q"])])
-    # and its loosest joints turned whole: minima tens of degrees away along them, beyond the windows' reach.
-    # A turned fit takes over only where the tracks prefer it beyond the tie tolerance; within it, the one the
-    # starts reached stays and the turned one is reported as a tie (among minima within a noise variance of
-    # each other, the full ranges' Panda from below, which one is lowest is the noise's choice)
-    other(5)
-    turned = [r for r in _loose_turns(robot, fits[0], tr, w) if not any(_same_motion(robot, r["q"], o["q"])
-                                                                       for o in fits)]
-    clear = fits[0]["objective"] - TIE_VARIANCES * _noise_variance(fits[0], w)
-    contend([r for r in turned if r["objective"] < clear])
-    contend([r for r in _wrist_twins_of(robot, fits[0], tr, w) if not any(_same_motion(robot, r["q"], o["q"])
-                                                                         for o in fits)])
-    best = _nearest_rest_of_exact(robot, fits, w)
-    fits[:] = [best] + [r for r in fits if r is not best] + [r for r in turned if r["objective"] >= clear]
-    var = _residual_variance(best, n_obs)
-    # (the weak fit's mirror/flip alternatives that perspective settles or not: the windows', turns' and wrist
-    # twins' own ties are _trust's, and so are the exact twins that other starts ended on: the Kinova from
-    # below, full ranges, seed 44, was said to tie with its mirror image where its only unsettled
-    # alternatives were its wrist's exact twins, flagged on the wrist's joints)
-    twin_of_best = _exact_twin_of(best, w)
-    relative = best["start"]["gauge"] & ~best["start"]["blind"]
-    others = [r for r in fits if r is not best and not any(r.get(k) for k in ("window", "twin", "turn")) and
-              not _same_motion(robot, r["q"], best["q"], relative) and not twin_of_best(r)]
-    best["settled"] = all(r["objective"] - best["objective"] > LR_MARGIN * var for r in others)
-    best["n_alternatives"] = len(others)
-    best["var"] = var
-    best["measured"], best["reason"] = True, ""
-    best["aspect"] = aspect
-    if fit_focal:
-        best.update(_measured_perspective(robot, best, tr, w, weak_sse, n_obs, fit_centre))
-    if best["measured"]:  # else the weak fit is reported, with its own
-        stage("robot fit, perspective: the joint angles' standard deviations and alternatives")
-        best["trust"] = _trust(robot, best, fits, tr, w, search_ties)
-    return best
+    # ---- the whole fit
+    def run(self, starts: list[dict], weak_sse: float, search_ties: bool, weak_fits: bool) -> dict:
+        """:func:`refine_perspective`: the starts screened and the best refined (:meth:`_from_starts`, which
+        may return early where the focal is unknown and the first start measures no perspective), the
+        other minima searched (:meth:`_other_minima`), then the winner chosen and assessed."""
+        robot, w = self.robot, self.w
+        early = self._from_starts(starts, weak_sse, weak_fits)
+        if early is not None:
+            return early
+        fits = self.fits
+        turned = self._other_minima(weak_sse)
+        clear = fits[0]["objective"] - TIE_VARIANCES * _noise_variance(fits[0], w)
+        self.contend([r for r in turned if r["objective"] < clear])
+        self.contend([r for r in _wrist_twins_of(robot, fits[0], self.tr, w)
+                      if not any(_same_motion(robot, r["q"], o["q"]) for o in fits)])
+        best = _nearest_rest_of_exact(robot, fits, w)
+        fits[:] = [best] + [r for r in fits if r is not best] + [r for r in turned if r["objective"] >= clear]
+        var = _residual_variance(best, self.n_obs)
+        # (the weak fit's mirror/flip alternatives that perspective settles or not: the windows', turns' and wrist
+        # twins' own ties are _trust's, and so are the exact twins that other starts ended on: the Kinova from
+        # below, full ranges, seed 44, was said to tie with its mirror image where its only unsettled
+        # alternatives were its wrist's exact twins, flagged on the wrist's joints)
+        twin_of_best = _exact_twin_of(best, w)
+        relative = best["start"]["gauge"] & ~best["start"]["blind"]
+        others = [r for r in fits if r is not best and not any(r.get(k) for k in ("window", "twin", "turn")) and
+                  not _same_motion(robot, r["q"], best["q"], relative) and not twin_of_best(r)]
+        best["settled"] = all(r["objective"] - best["objective"] > LR_MARGIN * var for r in others)
+        best["n_alternatives"] = len(others)
+        best["var"] = var
+        best["measured"], best["reason"] = True, ""
+        best["aspect"] = self.aspect
+        if self.fit_focal:
+            best.update(_measured_perspective(robot, best, self.tr, w, weak_sse, self.n_obs, self.fit_centre))
+        if best["measured"]:  # else the weak fit is reported, with its own
+            stage("robot fit, perspective: the joint angles' standard deviations and alternatives")
+            best["trust"] = _trust(robot, best, fits, self.tr, w, search_ties)
+        return best
+
+    def _from_starts(self, starts: list[dict], weak_sse: float, weak_fits: bool) -> dict | None:
+        """Every start (and each turned about the first joint's axis: the weak camera's guess of how far round
+        it stands) through the camera stage, the first over the focal guesses and the others at its focal;
+        then the weak fit's winner, the others of lowest cost there (MAX_STARTS in all) and the best turned
+        start refined in full, into ``fits``. Returns the first start's fit where it alone settles that
+        there is no perspective (``weak_fits`` and the focal unknown: :func:`refine_perspective`), else None."""
+        robot, w = self.robot, self.w
+        starts = [_pinhole_gauge(robot, st, w, self.unseen) for st in starts]
+        given = [st["q"] for st in starts]
+        self.given = given
+        starts = list(starts) + [dict(st, q=q, view=_camera_view(robot.positions(q), self.tr, w, False), turn_of=st)
+                                 for st in starts for q in _base_turns(robot, st["q"])]
+        self.first_start = starts[0]
+        early = self.fit_focal and weak_fits  # the first start may settle that there is no perspective (docstring)
+        step = stage_steps("robot fit, perspective: the camera from start", len(starts))
+        step(0)
+        screened, first = [self.camera_start(starts[0], self.f_inits)], []  # the first over the focal guesses
+        chosen_f = screened[0][3] if self.fit_focal else self.f_inits[0]
+        if early:
+            first = self.refine_in_full(starts[0], screened[0])
+            lead = min(first, key=lambda r: r["objective"])
+            measured = _measured_perspective(robot, lead, self.tr, w, weak_sse, self.n_obs, self.fit_centre)
+            if not measured["measured"]:
+                return dict(lead, **measured)
+        # the others at its focal
+        screened += map_tasks(robot, lambda st: self.camera_start(st, [chosen_f]), starts[1:], lambda i: step(i + 1))
+        # the turned starts compete for a slot of their own: on the xArm7 from below (full ranges, seed 0) one of
+        # lower camera-stage cost pushed the true basin's start out, and the fit ended 151 degrees off
+        by_cost = sorted(range(1, len(starts)), key=lambda k: screened[k][0])
+        keep = [0] + [k for k in by_cost if k < len(given)][:MAX_STARTS - 1] + \
+            [k for k in by_cost if k >= len(given)][:1]
+        # (a start that the camera stage brought onto one kept before it, turned about the gauge joint, is refined
+        # into that one's basin: the milling arm, 300 frames, K known: all three turns of the winner's start came
+        # back onto it, and the one kept ended on the winner's objective to 2e-10 after 1 s of refining; the
+        # xArm7, 100 frames, on a fit 0.26 degrees from the winner's on joint5)
+        keep = [k for i, k in enumerate(keep) if not any(
+            _turned_copy(robot, screened[j], screened[k], starts[k]["gauge"]) for j in keep[:i])]
+        step = stage_steps("robot fit, perspective: refining in full, start", len(keep))
+        for r in map_tasks(robot, lambda k: first if k == 0 and early else self.refine_in_full(starts[k], screened[k]),
+                           keep, step):
+            self.fits += r
+        self.contend([])
+        return None
+
+    def _other_minima(self, weak_sse: float) -> list[dict]:
+        """Six searches around the best fit, each a step of the stage's log (a count and the time left: 3.5 s
+        in the demo at 300 frames): a camera searched without weak perspective, the other starts' branches
+        grafted onto the winner, its twins, its turns about the base's line and its windows join ``fits``;
+        its loosest joints turned whole are returned, for :meth:`run` to weigh."""
+        robot, tr, w, fits = self.robot, self.tr, self.w, self.fits
+        other = stage_steps("robot fit, perspective: other minima (a searched camera, grafts, twins, turns about the "
+                            "base's line, windows, turned joints), search", 6)
+        other(0)
+        searched = _searched_start(robot, fits[0], tr, w, self.first_start, self.K, self.n_obs, weak_sse)
+        if searched is not None:  # one more contender, on the objective like the others
+            self.contend(self.finish(*searched, self.first_start, 0))
+        # (the given starts only: a turned start's tails beyond the first joint are its original's)
+        other(1)
+        grafted = _grafted(robot, fits[0], self.given + [r["q"] for r in fits[1:]], tr, w)
+        if grafted is not None:
+            self.contend(self.finish(grafted, fits[0]["view"], fits[0]["start"], 0))
+        other(2)
+        self._twins_of_lead()
+        # the winner turned about the line of the base's tracked points, where no joint turns about it, with the
+        # camera turned to match (candidates._static_line_starts): the camera's freedom about that line is bounded
+        # only by whether the robot can make the turned motion, and no start need lie in the basin it leads to
+        other(3)
+        lead = fits[0]
+        for r in map_tasks(robot, lambda s: self.finish(*s, lead["start"], 0), _static_line_starts(
+                robot, dict(lead, gauge=lead["start"]["gauge"], var=_noise_variance(lead, w)), tr, w, TIE_VARIANCES)):
+            self.contend(r)
+        # the winner's path moved on windows along what the tracks fix least: minima that differ from it on a
+        # window only, which no whole-sequence candidate is (a tie then reported, or a lower one the winner)
+        other(4)
+        lead = fits[0]
+        self.contend([r for r in _weak_windows(robot, lead, tr, w, self.fps)
+                      if not _same_motion(robot, r["q"], lead["q"])])
+        # and its loosest joints turned whole: minima tens of degrees away along them, beyond the windows' reach.
+        # A turned fit takes over only where the tracks prefer it beyond the tie tolerance; within it, the one the
+        # starts reached stays and the turned one is reported as a tie (among minima within a noise variance of
+        # each other, the full ranges' Panda from below, which one is lowest is the noise's choice)
+        other(5)
+        return [r for r in _loose_turns(robot, fits[0], tr, w) if not any(_same_motion(robot, r["q"], o["q"])
+                                                                          for o in fits)]
+
+    def _twins_of_lead(self) -> None:
+        """The winner's mirror image, facing the camera as it does, and the winner turned about the first joint's
+        axis with the camera turned to match: its twins, which no start need reach (each refitted in full only
+        when a plain fit of it ties with the winner's: a big robot's mirror twin is far off)."""
+        robot, fits = self.robot, self.fits
+        lead = fits[0]
+        mirror = _pinhole_twin(robot, lead["q"], lead["view"], lead["free"], NEAR_MIRROR)
+        var0 = _noise_variance(lead, self.w)
+        twins = [(tw, tw is mirror) for tw in ([] if mirror is None else [mirror]) +
+                 _turned_twins(robot, lead["q"], lead["view"])]
+        for (q_tw, v_tw), is_mirror in twins:
+            if any(_same_motion(robot, q_tw, r["q"]) for r in fits):
+                continue
+            plain = _sequence_lm(robot, q_tw, self.tr, self.w, v_tw, lead["free"], np.ones(v_tw.n_params, bool),
+                                 self.max_iter, self.tol, lead["delta"])
+            if is_mirror and not self.tied(plain, lead, var0):
+                plain = min(plain, self.mirror_start(q_tw, lead), key=lambda o: _robust(o[2], self.w, lead["delta"]))
+            if self.tied(plain, lead, var0):
+                fits += self.finish(plain[0], plain[1], lead["start"], plain[5])
+        self.contend([])
 
 
 def _measured_perspective(robot: RobotKinematics, fit: dict, tracks: np.ndarray, w: np.ndarray, weak_sse: float,

@@ -57,7 +57,8 @@ class WeakRefinement:
                  loss_scale_px: float | None, view_from: str | None, for_starts: bool, starts_only: bool,
                  timings: dict[str, float]):
         self.robot, self.tracks, self.w2, self.w3 = robot, tracks, w2, w3
-        self.blind, self.free_blind, self.gauge0, self.free_sim, self.unseen3 = blind, free_blind, gauge0, free_sim, unseen3
+        self.blind, self.free_blind, self.gauge0 = blind, free_blind, gauge0
+        self.free_sim, self.unseen3 = free_sim, unseen3
         self.per_frame, self.transform, self.max_iter, self.tol = per_frame, transform, max_iter, tol
         self.loss_scale_px, self.view_from, self.starts_only = loss_scale_px, view_from, starts_only
         self.timings = timings
