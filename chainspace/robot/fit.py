@@ -472,7 +472,7 @@ def fit_joint_angles(
         if (w2 > 0).sum() < 6:
             raise TrackError(f"the tracks have {int((w2 > 0).sum())} usable points; the camera needs at least 6")
         # only the starts of a perspective fit with the intrinsics known (never reported, not assessed):
-        # that fit chooses every frame's branch again under its own camera (refine_perspective's finish)
+        # that fit chooses every frame's branch again under its own camera (PerspectiveRefinement.finish)
         # and picks among exact twins itself (the wrist twins enter its candidates), so the choices
         # that serve a reported weak fit are cut short (docs/benchmarks.md, Robot fit speed, stop 49)
         weak = WeakRefinement(robot, tracks, w2, w3, blind, free_blind, gauge0, free_sim, unseen3,

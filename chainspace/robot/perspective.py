@@ -787,7 +787,7 @@ def _weak_windows(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.
     the loosest first), the winner's path moved along it by SHAKE_DEG (as
     :func:`chainspace.robot.uncertainty._shaken` moves a joint; a raised cosine over the window) either
     way, then refitted smoothed with the camera (the winner's prior and objective). Returns fit dicts
-    as ``refine_perspective``'s ``finish`` makes them. Costs one Jacobian pass and at most
+    as :meth:`PerspectiveRefinement.finish` makes them. Costs one Jacobian pass and at most
     2 x WEAK_MAX_WINDOWS smoothed refits that start next to the winner.
 
     Why: where a frame's tracks leave a direction loose, the acceleration prior chooses the path along
@@ -829,7 +829,7 @@ def _weak_windows(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.
 def _smoothed_refit(robot: RobotKinematics, lead: dict, q0: np.ndarray, tracks: np.ndarray, w: np.ndarray,
                     max_iter: int, tol: float, **tag) -> dict:
     """q0 (F, nq) refitted smoothed, camera too, under the winner ``lead``'s camera, motion prior, Huber
-    threshold and free directions: a fit dict as ``refine_perspective``'s ``finish`` makes them, with
+    threshold and free directions: a fit dict as :meth:`PerspectiveRefinement.finish` makes them, with
     ``tag`` (``window=``, ``turn=``: what the other-minima searches mark their fits with)."""
     view, delta, prior, st = lead["view"], lead["delta"], lead["prior"], lead["start"]
     o = _smooth_lm(robot, robot.continuous(q0), tracks, w, view, st["free_prior"], np.ones(view.n_params, bool),
@@ -852,7 +852,7 @@ def _loose_turns(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.n
     first; the winner ``lead``'s whole path turned on those joints by every combination of multiples of
     :data:`TURN_STEP_DEG` (all but none), each refitted smoothed with the camera under the winner's
     prior, briefly (20 iterations); the :data:`TURN_REFITS` distinct ones of lowest objective then
-    refitted in full. Returns fit dicts as ``refine_perspective``'s ``finish`` makes them, each with
+    refitted in full. Returns fit dicts as :meth:`PerspectiveRefinement.finish` makes them, each with
     ``turn`` (the joints' names and the turns in degrees).
 
     Why: where the tracks fix a wrist's joints to a few degrees per frame, the smoothed objective can have
