@@ -338,8 +338,8 @@ def _window_medians(rn: np.ndarray, w: np.ndarray, size: int = POOR_FIT_WINDOW) 
                      if seen[:, j].sum() >= size else 0.0 for j in range(rn.shape[1])])
 
 
-def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np.ndarray,
-                    sigma: float, extent: float = 0.0, jitter: float = np.nan) -> tuple[np.ndarray, list[str], np.ndarray]:
+def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np.ndarray, sigma: float,
+                    extent: float = 0.0, jitter: float = np.nan) -> tuple[np.ndarray, list[str], np.ndarray]:
     """Joints (nv,) that move a tracked point the fit does not explain or lie beyond it in the chain, the
     names of those points, and each point's ratio (J,) of its median residual (over the sequence or, where
     larger, over a window of it) to the noise's.
@@ -404,7 +404,8 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     ``noise_px`` (the measured pixel noise), ``alternatives`` (:func:`alternatives_of`; ``scored``
     holds (objective, fit) pairs, objectives in units where a noise variance is ``var``), ``ambiguous``
     (nv,: tied, poorly fitted or uncertain; every joint where the solver stopped before it converged),
-    ``ambiguity_deg`` (nv,), ``notes`` (sentences for the fit's message) and ``reasons`` (nv strings: why each flagged joint is flagged, "" for the rest).
+    ``ambiguity_deg`` (nv,), ``notes`` (sentences for the fit's message) and ``reasons`` (nv strings: why
+    each flagged joint is flagged, "" for the rest).
 
     ``winner``: the reported fit (``out``, ``q``, ``free``/``free_prior``, ``delta``); ``prior``: the
     motion prior it was smoothed with, or None; ``wrong_side(fit)``: the camera-side rule, True where
@@ -462,15 +463,15 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
                      "camera this fit assumes (or the robot model) does not explain the tracks")
     elif poor.any():
         notes.append(f"poor fit: {', '.join(robot.joint_names[k] for k in np.flatnonzero(poor))}: the tracks of "
-                     f"{', '.join(points)} are fitted {ratio.max():.1f} times further off (median, over the sequence or "
-                     f"{POOR_FIT_WINDOW} sightings in a row) than the noise "
+                     f"{', '.join(points)} are fitted {ratio.max():.1f} times further off (median, over the "
+                     f"sequence or {POOR_FIT_WINDOW} sightings in a row) than the noise "
                      f"({noise:.2g} px, the tracks' own jitter {jitter:.2g} px) or the typical tracked point allow, "
                      "so the fit ended in a wrong basin or the model does not match the robot; the reported motion "
                      "is not known to be right")
     if stalled.any():
         notes.append(f"not converged: {', '.join(robot.joint_names[k] for k in np.flatnonzero(stalled))}: the "
                      "solver stopped before it reached a minimum of its objective, so the reported motion is not "
-                     "known to be right (such fits were mostly in a wrong basin)")
+                     "known to be right (in the benchmarks such fits were in a wrong basin)")
     if ambiguous.any():  # the tied joints only: a poorly fitted one has its own note above
         names = [f"{robot.joint_names[k]} ({worst[k]:.0f} {unit[k]} RMS)" for k in np.flatnonzero(ambiguous)]
         notes.append(f"ambiguous: {', '.join(names)}: {len(alts)} other motion(s) fit the tracks as well "
