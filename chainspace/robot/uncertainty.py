@@ -466,8 +466,8 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
                      f"{', '.join(points)} are fitted {ratio.max():.1f} times further off (median, over the "
                      f"sequence or {POOR_FIT_WINDOW} sightings in a row) than the noise "
                      f"({noise:.2g} px, the tracks' own jitter {jitter:.2g} px) or the typical tracked point allow, "
-                     "so the fit ended in a wrong basin or the model does not match the robot; the reported motion "
-                     "is not known to be right")
+                     "so the fit ended in a wrong basin or the model does not match the robot, and the reported "
+                     "motion is not known to be right")
     if stalled.any():
         notes.append(f"not converged: {', '.join(robot.joint_names[k] for k in np.flatnonzero(stalled))}: the "
                      "solver stopped before it reached a minimum of its objective, so the reported motion is not "
