@@ -13,6 +13,7 @@ from .compiled import imap_tasks, map_tasks
 from .views import _View, _looks_down
 from .solver import _smooth_lm, _smoothed_objective
 from .candidates import TIE_VARIANCES, _LONG_GAP, _across_long_gaps, _same_motion, _turned_views
+from .starts import _whole_turn_joint
 
 
 def view_side_valid(robot: RobotKinematics) -> tuple[bool, str]:
@@ -136,7 +137,11 @@ def _most_probable(robot: RobotKinematics, results: list[dict], tracks: np.ndarr
     near = [(r, r["out"][0], r["out"][1]) for r in results if r["sse"] <= 1.1 * best_sse + TIE_VARIANCES * sigma ** 2]
     score_in_order(near, True, stage_steps("robot fit: the motion prior, scoring fit", len(near)))  # a UR5's four: 14 s
     best, r = min(scored, key=lambda sr: sr[0])
-    score_in_order([(r, r["q"], view_t) for view_t in _turned_views(robot, r["q"], r["out"][1], r["gauge"])])
+    turning = r["gauge"].copy()  # the camera's azimuth about the first joint's axis is a guess either way
+    k = _whole_turn_joint(robot, r["q"])
+    if k is not None:
+        turning[k] = True
+    score_in_order([(r, r["q"], view_t) for view_t in _turned_views(robot, r["q"], r["out"][1], turning)])
     best, r = min(scored, key=lambda sr: sr[0])
     # a joint seen again after a long gap: the bridges to its other branches that score alike (the
     # acceleration prior charges nothing for a straight ramp), the one that moves least wins

@@ -236,6 +236,16 @@ def _fit_3d(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np.ndarr
     return q, view, n_iter
 
 
+def _whole_turn_joint(robot: RobotKinematics, q: np.ndarray) -> int | None:
+    """The first revolute joint (its index among the degrees of freedom) that turns every tracked point
+    any joint moves, in the first frame of q (F, nq): an arm's first joint; None for a tree of legs."""
+    pos, jac = robot.jacobians(q[:1])
+    moves = np.linalg.norm(jac[0], axis=1) > 1e-9  # (J, nv)
+    moved = moves.any(1)
+    whole = np.flatnonzero(robot.turns_v & (moves | ~moved[:, None]).all(0) & moves.any(0))
+    return int(whole[0]) if whole.size else None
+
+
 def _base_turns(robot: RobotKinematics, q: np.ndarray,
                 turns: tuple[float, ...] = (0.5 * np.pi, np.pi, -0.5 * np.pi)) -> list[np.ndarray]:
     """The motion q (F, nq) turned by ``turns`` (radians) about the axis of the first joint that turns
@@ -248,15 +258,12 @@ def _base_turns(robot: RobotKinematics, q: np.ndarray,
     0.3 m away): every weak start tens of degrees off on joint1 (one nearly half a turn), the fit 91
     degrees off, 5.6 px RMS on 1 px tracks; the true motion's basin, its objective 17 times lower, was
     reached from a quarter turn of one of them."""
-    pos, jac = robot.jacobians(q[:1])
-    moves = np.linalg.norm(jac[0], axis=1) > 1e-9  # (J, nv)
-    moved = moves.any(1)
-    whole = np.flatnonzero(robot.turns_v & (moves | ~moved[:, None]).all(0) & moves.any(0))
-    if not whole.size:
+    k = _whole_turn_joint(robot, q)
+    if k is None:
         return []
     out = []
     for turn in turns:
         dv = np.zeros((len(q), robot.nv))
-        dv[:, whole[0]] = turn
+        dv[:, k] = turn
         out.append(robot.integrate(q, dv, clip=False))  # a turn, not a pose: the limits are the fit's to keep
     return out
