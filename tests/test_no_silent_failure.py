@@ -243,12 +243,15 @@ def test_a_hanging_arm_through_a_weak_camera_ends_right_or_says_it_does_not_know
     assert not silent, silent
 
 
-@pytest.mark.parametrize("robot, setting, seed", [("kinova", "full, above", 55), ("talos_arm", "full, below", 54)])
+@pytest.mark.parametrize("robot, setting, seed", [("kinova", "full, above", 55), ("talos_arm", "full, below", 47)])
 def test_a_fit_whose_solver_stopped_short_flags_every_joint(robot, setting, seed, example_urdf):
-    """Two fresh weak-camera seeds of stop 53 (`bench_full_range.py --camera static`): the winner's solver
-    stopped before it converged, in a wrong basin (its squared residuals 1.3-2.6 times the truth's refit),
-    and joints 92-101 degrees off were reported observable; the message said only "the solver stopped
-    before it converged". Such a fit is no minimum the tracks chose: every joint is flagged."""
+    """Weak-camera full-range runs (`bench_full_range.py --camera static`) whose winner's solver stopped
+    before it converged, in a wrong basin: the Kinova from above, a fresh seed of stop 53, its squared
+    residuals 2.6 times the truth's refit and joints 2-3 92-94 degrees off reported observable, the
+    message saying only "the solver stopped before it converged"; the TALOS arm from below, joints 3-7
+    8-33 degrees off. Such a fit is no minimum the tracks chose: every joint is flagged. (Stop 53's other
+    such run, the TALOS arm from below, 54, ends right since the weak fit is also smoothed from turns
+    of its first joint.)"""
     from chainspace.bench.full_range import _film, _fit, full_range_chain, judge_joints
 
     example_urdf(robot)
