@@ -386,9 +386,10 @@ def _nearest_rest_branch(robot: RobotKinematics, q: np.ndarray, free: np.ndarray
 def _turned_views(robot: RobotKinematics, q: np.ndarray, view: _View, gauge: np.ndarray,
                   turns: tuple[float, ...] = (0.5 * np.pi, np.pi, -0.5 * np.pi)) -> list[_View]:
     """Views that show the motion q (F, nq) as ``view`` shows it turned by ``turns`` (radians) about
-    each gauge direction's axis (``gauge`` (nv,): for an arm on a floor, its first joint, whose turn
-    the camera's azimuth imitates): starts for the smoothed search with q itself, and the gauge held in
-    frame 0, as they are. Each view is fitted to the image of the turned robot.
+    the axis of each joint in ``gauge`` (nv,): the gauge directions (for an arm on a floor, its first
+    joint, whose turn the camera's azimuth imitates) and any other joint whose turn the camera's nearly
+    imitates: starts for the smoothed search with q itself, and the gauge held in frame 0, as they are.
+    Each view is fitted to the image of the turned robot.
 
     Why: how far round its base the camera stands is a guess of the start, and the smoothed search
     stays near the side it starts from; at 53 % hidden limbs a motion seen from below, with its first
