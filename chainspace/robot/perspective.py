@@ -474,11 +474,12 @@ class PerspectiveRefinement:
         may return early where the focal is unknown and the first start measures no perspective), the
         other minima searched (:meth:`_other_minima`), then the winner chosen and assessed."""
         robot, w = self.robot, self.w
+        starts = [_pinhole_gauge(robot, st, w, self.unseen) for st in starts]
         early = self._from_starts(starts, weak_sse, weak_fits)
         if early is not None:
             return early
         fits = self.fits
-        turned = self._other_minima(weak_sse)
+        turned = self._other_minima(starts, weak_sse)
         clear = fits[0]["objective"] - TIE_VARIANCES * _noise_variance(fits[0], w)
         self.contend([r for r in turned if r["objective"] < clear])
         self.contend([r for r in _wrist_twins_of(robot, fits[0], self.tr, w)
@@ -507,18 +508,16 @@ class PerspectiveRefinement:
         return best
 
     def _from_starts(self, starts: list[dict], weak_sse: float, weak_fits: bool) -> dict | None:
-        """Every start (and each turned about the first joint's axis: the weak camera's guess of how far round
-        it stands) through the camera stage, the first over the focal guesses and the others at its focal;
-        then the weak fit's winner, the others of lowest cost there (MAX_STARTS in all) and the best turned
-        start refined in full, into ``fits``. Returns the first start's fit where it alone settles that
-        there is no perspective (``weak_fits`` and the focal unknown: :func:`refine_perspective`), else None."""
+        """Every start (as :func:`_pinhole_gauge` makes them; and each turned about the first joint's axis:
+        the weak camera's guess of how far round it stands) through the camera stage, the first over the
+        focal guesses and the others at its focal; then the weak fit's winner, the others of lowest cost
+        there (MAX_STARTS in all) and the best turned start refined in full, into ``fits``. Returns the
+        first start's fit where it alone settles that there is no perspective (``weak_fits`` and the focal
+        unknown: :func:`refine_perspective`), else None."""
         robot, w = self.robot, self.w
-        starts = [_pinhole_gauge(robot, st, w, self.unseen) for st in starts]
-        given = [st["q"] for st in starts]
-        self.given = given
+        n_given = len(starts)
         starts = list(starts) + [dict(st, q=q, view=_camera_view(robot.positions(q), self.tr, w, False), turn_of=st)
                                  for st in starts for q in _base_turns(robot, st["q"])]
-        self.first_start = starts[0]
         early = self.fit_focal and weak_fits  # the first start may settle that there is no perspective (docstring)
         step = stage_steps("robot fit, perspective: the camera from start", len(starts))
         step(0)
@@ -535,8 +534,8 @@ class PerspectiveRefinement:
         # the turned starts compete for a slot of their own: on the xArm7 from below (full ranges, seed 0) one of
         # lower camera-stage cost pushed the true basin's start out, and the fit ended 151 degrees off
         by_cost = sorted(range(1, len(starts)), key=lambda k: screened[k][0])
-        keep = [0] + [k for k in by_cost if k < len(given)][:MAX_STARTS - 1] + \
-            [k for k in by_cost if k >= len(given)][:1]
+        keep = [0] + [k for k in by_cost if k < n_given][:MAX_STARTS - 1] + \
+            [k for k in by_cost if k >= n_given][:1]
         # (a start that the camera stage brought onto one kept before it, turned about the gauge joint, is refined
         # into that one's basin: the milling arm, 300 frames, K known: all three turns of the winner's start came
         # back onto it, and the one kept ended on the winner's objective to 2e-10 after 1 s of refining; the
@@ -550,21 +549,22 @@ class PerspectiveRefinement:
         self.contend([])
         return None
 
-    def _other_minima(self, weak_sse: float) -> list[dict]:
+    def _other_minima(self, starts: list[dict], weak_sse: float) -> list[dict]:
         """Six searches around the best fit, each a step of the stage's log (a count and the time left: 3.5 s
-        in the demo at 300 frames): a camera searched without weak perspective, the other starts' branches
-        grafted onto the winner, its twins, its turns about the base's line and its windows join ``fits``;
-        its loosest joints turned whole are returned, for :meth:`run` to weigh."""
+        in the demo at 300 frames): a camera searched without weak perspective, the other ``starts``' (the
+        given ones, as :meth:`_from_starts` takes them) branches grafted onto the winner, its twins, its
+        turns about the base's line and its windows join ``fits``; its loosest joints turned whole are
+        returned, for :meth:`run` to weigh."""
         robot, tr, w, fits = self.robot, self.tr, self.w, self.fits
         other = stage_steps("robot fit, perspective: other minima (a searched camera, grafts, twins, turns about the "
                             "base's line, windows, turned joints), search", 6)
         other(0)
-        searched = _searched_start(robot, fits[0], tr, w, self.first_start, self.K, self.n_obs, weak_sse)
+        searched = _searched_start(robot, fits[0], tr, w, starts[0], self.K, self.n_obs, weak_sse)
         if searched is not None:  # one more contender, on the objective like the others
-            self.contend(self.finish(*searched, self.first_start, 0))
+            self.contend(self.finish(*searched, starts[0], 0))
         # (the given starts only: a turned start's tails beyond the first joint are its original's)
         other(1)
-        grafted = _grafted(robot, fits[0], self.given + [r["q"] for r in fits[1:]], tr, w)
+        grafted = _grafted(robot, fits[0], [st["q"] for st in starts] + [r["q"] for r in fits[1:]], tr, w)
         if grafted is not None:
             self.contend(self.finish(grafted, fits[0]["view"], fits[0]["start"], 0))
         other(2)
