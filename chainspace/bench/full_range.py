@@ -71,8 +71,12 @@ def full_range_chain(name: str):
 
 def judge_joints(fit: Any, trial: Any) -> list[dict[str, Any]]:
     """One row per joint (degree of freedom): name, status (the fit's report), error (RMS, degrees or mm,
-    of every joint whatever its status), unit, verdict ("ok", "flagged" or "silent") and reason."""
+    of every joint whatever its status), std (the fit's standard deviation, RMS over the frames, same unit;
+    None where it gives none), alternative (the largest RMS difference from it of an alternative that fits as
+    well and nothing settled, same unit; 0 without one), unit, verdict ("ok", "flagged" or "silent") and
+    reason. The last two let a flagging rule be weighed on kept runs."""
     from ..robot.result import joint_flags
+    from ..robot.uncertainty import ambiguous_joints, uncertain_joints
     from ..robot.validation import compared_differences, validate
 
     rep = validate(fit, trial.q)
@@ -80,6 +84,11 @@ def judge_joints(fit: Any, trial: Any) -> list[dict[str, Any]]:
     a, ta = robot.angles(np.asarray(fit.q, float)), robot.angles(np.asarray(trial.q, float))
     relative = joint_flags(fit, "relative", robot.nv)
     diff = compared_differences(robot, a, ta, relative)  # a relative joint without its offset, also when flagged
+    q_std = getattr(fit, "q_std", None)
+    spread = np.full(robot.nv, np.nan) if q_std is None else \
+        uncertain_joints(robot, np.asarray(q_std, float), np.ones(robot.nv, bool))[1]
+    apart = ambiguous_joints(robot, a, list(getattr(fit, "alternatives", None) or []), np.ones(robot.nv, bool),
+                             relative)[1]
     rows = []
     for k, j in enumerate(rep.joints):
         status = str(j["status"])
@@ -93,7 +102,9 @@ def judge_joints(fit: Any, trial: Any) -> list[dict[str, Any]]:
             verdict, reason = "flagged", status + (f" ({j['reason'][:160]})" if j.get("reason") else "")
         else:
             verdict, reason = "silent", f"reported {status}"
-        rows.append(dict(name=j["name"], status=status, error=err, unit="mm" if prismatic else "deg",
+        rows.append(dict(name=j["name"], status=status, error=err,
+                         std=float(spread[k]) if np.isfinite(spread[k]) else None, alternative=float(apart[k]),
+                         unit="mm" if prismatic else "deg",
                          verdict=verdict, reason=reason))
     return rows
 

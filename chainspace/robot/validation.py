@@ -144,8 +144,8 @@ class ValidationReport:
             for j in amb:                      # reasons gives its whole message for each)
                 groups.setdefault(j.get("reason", ""), []).append(j["name"])
             out.append("- ambiguous, listed and not judged (another motion fits the tracks as well, the fit does not "
-                       f"explain them, or {UNCERTAIN_SIGMAS:g} of the joint's standard deviations are more than "
-                       f"{AMBIGUOUS_DEG:g} degrees): "
+                       f"explain them, or {UNCERTAIN_SIGMAS:g} of the joint's standard deviations, plus its "
+                       f"difference from such a motion, are more than {AMBIGUOUS_DEG:g} degrees): "
                        + "; ".join(f"{', '.join(n)}: {r}" if r else ", ".join(n) for r, n in groups.items()))
         if rel:
             out.append(f"- {', '.join(rel)}: seen only relative to frame 0 (a turn of the camera looks the same), "
