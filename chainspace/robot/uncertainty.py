@@ -252,7 +252,8 @@ def uncertain_joints(robot: RobotKinematics, std: np.ndarray, judged: np.ndarray
     the four joints more than 2 degrees off and reported, two were this case: the Panda from below (seed
     61) panda_joint1, 0.81 degrees, an alternative 1.1 degrees away, 2.09 off; the Z1 from below (seed 59)
     joint2, 0.66 degrees, an alternative 1.59 away, 2.51 off. The rule flags 13 further joints there that
-    were within 2 degrees; three standard deviations alone would have flagged 172 and caught neither."""
+    were within 2 degrees; three standard deviations alone would have flagged 172 such and caught only the
+    Panda's."""
     known = np.isfinite(std).any(0)
     ms = np.nanmean(np.where(known, std, 0.0) ** 2, axis=0)
     spread = np.where(known, np.sqrt(ms) * np.where(robot.prismatic_v, 1000.0, np.degrees(1.0)), np.nan)
@@ -493,7 +494,7 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
                      + (f" ({side_why})" if side_why else ""))
     if uncertain.any():
         names = [f"{robot.joint_names[k]} ({spread[k]:.1f} {unit[k]}" + (f", an alternative {near[k]:.1f} {unit[k]} "
-                 "away" if near[k] > 0 else "") + ")" for k in np.flatnonzero(uncertain)]
+                 "away" if near[k] >= 0.05 else "") + ")" for k in np.flatnonzero(uncertain)]
         notes.append(f"uncertain: {', '.join(names)}: {UNCERTAIN_SIGMAS:g} reported standard deviations (RMS over "
                      f"the frames, fit.q_std), plus the difference from another motion that fits as well where "
                      f"there is one, are more than {AMBIGUOUS_DEG:g} degrees ({AMBIGUOUS_DEG:g} mm for a sliding "
@@ -510,7 +511,7 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
                        f"{worst[k]:.0f} {unit[k]} RMS (fit.alternatives)"),
         (uncertain[k], f"uncertain: standard deviation {spread[k]:.1f} {unit[k]} (RMS over the frames, fit.q_std): "
                        f"{UNCERTAIN_SIGMAS:g} of them" + (f", plus the {near[k]:.1f} {unit[k]} by which a motion "
-                       "that fits as well differs here (fit.alternatives)," if near[k] > 0 else "")
+                       "that fits as well differs here (fit.alternatives)," if near[k] >= 0.05 else "")
                        + f" exceed the {AMBIGUOUS_DEG:g} {unit[k]} claimed")) if flag)
         for k in range(robot.nv)]
     ambiguous = ambiguous | poor | uncertain | stalled
