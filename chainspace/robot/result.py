@@ -88,8 +88,8 @@ class JointFit:
     worse in noise variances, "settled_by": the rule that validly set it aside or None}``.
     ``ambiguous`` (nv,) bool: joints reported, not trusted: an unsettled alternative differs there by
     more than :data:`~chainspace.robot.uncertainty.AMBIGUOUS_DEG` degrees RMS ("tie"), the fit misses a
-    tracked point the joint moves ("poor fit"), or twice its standard deviation, plus any such
-    alternative's difference, is more than that ("uncertain",
+    tracked point the joint moves, or a base point on average ("poor fit"), or twice its standard
+    deviation, plus any such alternative's difference, is more than that ("uncertain",
     :data:`~chainspace.robot.uncertainty.UNCERTAIN_SIGMAS`);
     ``joint_reasons`` (nv,) str: why, per joint ("" where not flagged). ``fps``: the frame rate (frames per
     second) the motion prior assumed, which plots and the viewer play the motion at.
