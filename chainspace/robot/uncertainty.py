@@ -23,11 +23,10 @@ motion fits as well (the fit's candidates, the depth flips, the wrist's exact Eu
 (:func:`_wrist_twins`) and, with ``search_ties``, the searches) and differs by more than
 :data:`AMBIGUOUS_DEG`; where the fit misses a tracked point in most frames ("poor fit",
 :func:`poor_fit_joints`), or a base point on average (:func:`base_offsets`: the camera is off): a wrong
-basin nothing ties with is still not an answer; and where the
-joint's own standard deviation, twice over (:data:`UNCERTAIN_SIGMAS`), plus its difference from an
-alternative that fits as well, is more than :data:`AMBIGUOUS_DEG` ("uncertain", :func:`uncertain_joints`):
-the tracks do not pin it down to the accuracy claimed; and every joint where the solver stopped before it
-converged ("not converged"). Each
+basin nothing ties with is still not an answer; and where the joint's own standard deviation, twice over
+(:data:`UNCERTAIN_SIGMAS`), plus its difference from an alternative that fits as well, is more than
+:data:`AMBIGUOUS_DEG` ("uncertain", :func:`uncertain_joints`): the tracks do not pin it down to the
+accuracy claimed; and every joint where the solver stopped before it converged ("not converged"). Each
 flagged joint's reasons are returned one per joint (``reasons``, ``JointFit.joint_reasons``).
 """
 
@@ -353,6 +352,12 @@ def _window_medians(rn: np.ndarray, w: np.ndarray, size: int = POOR_FIT_WINDOW) 
                      if seen[:, j].sum() >= size else 0.0 for j in range(rn.shape[1])])
 
 
+def _point_movers(robot: RobotKinematics, q: np.ndarray) -> np.ndarray:
+    """(J, nv) which joints move which tracked point, read from the Jacobians of five frames of q (F, nq)."""
+    frames = np.unique(np.linspace(0, len(q) - 1, min(len(q), 5)).round().astype(int))
+    return np.linalg.norm(robot.jacobians(q[frames])[1], axis=2).max(0) > 1e-9
+
+
 def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np.ndarray, sigma: float,
                     extent: float = 0.0, jitter: float = np.nan) -> tuple[np.ndarray, list[str], np.ndarray]:
     """Joints (nv,) that move a tracked point the fit does not explain or lie beyond it in the chain, the
@@ -395,9 +400,7 @@ def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np
     bad = judged & missed
     if not bad.any():
         return np.zeros(robot.nv, bool), [], ratio
-    frames = np.unique(np.linspace(0, len(q) - 1, min(len(q), 5)).round().astype(int))
-    jac = robot.jacobians(q[frames])[1]  # (f, J, 3, nv)
-    moves = np.linalg.norm(jac, axis=2).max(0) > 1e-9  # (J, nv)
+    moves = _point_movers(robot, q)
     joints = moves[bad].any(0)
     if (~moves[bad].any(1)).any():  # a base point missed: the camera is off, so is every joint
         joints[:] = True
@@ -441,8 +444,7 @@ def base_offsets(robot: RobotKinematics, q: np.ndarray, view, tracks: np.ndarray
     none = np.zeros(J, bool), np.zeros(J), np.zeros(J)
     if getattr(view, "per_frame", False) or not np.isfinite(sigma) or sigma <= 0:
         return none
-    frames = np.unique(np.linspace(0, len(q) - 1, min(len(q), 5)).round().astype(int))
-    still = ~(np.linalg.norm(robot.jacobians(q[frames])[1], axis=2).max(0) > 1e-9).any(1)  # (J,)
+    still = ~_point_movers(robot, q).any(1)
     seen = (w > 0) & np.isfinite(tracks).all(-1)
     n = seen.sum(0)
     judged = still & (n >= POOR_FIT_MIN_FRAMES)
