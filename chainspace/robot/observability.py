@@ -44,6 +44,13 @@ def _moves(robot: RobotKinematics, seed: int = 0) -> np.ndarray:
     return np.linalg.norm(jac, axis=2).max(0) > 1e-9 * ext
 
 
+def _point_movers(robot: RobotKinematics, q: np.ndarray) -> np.ndarray:
+    """(J, nv) which directions move which of the chain's points in the motion q (F, nq): read from the
+    Jacobians of five of its frames (all of them when fewer), where :func:`_moves` reads the structure."""
+    frames = np.unique(np.linspace(0, len(q) - 1, min(len(q), 5)).round().astype(int))
+    return np.linalg.norm(robot.jacobians(q[frames])[1], axis=2).max(0) > 1e-9
+
+
 def _unseen(robot: RobotKinematics, w: np.ndarray, seed: int = 0) -> np.ndarray:
     """(F, nv) directions that move no point seen in that frame (w (F, J) > 0): the data say nothing
     about them there, so they are held and later interpolated from the neighbouring frames."""

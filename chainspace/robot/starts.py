@@ -9,6 +9,7 @@ import numpy as np
 from .kinematics import RobotKinematics, _held_q, _random_q, _rest_distance, _seeded, _wrapped
 from .views import _View, _align, _camera_view
 from .solver import _sequence_lm
+from .observability import _point_movers
 
 
 def _rotation_candidates(n_directions: int, n_azimuths: int) -> np.ndarray:
@@ -239,8 +240,7 @@ def _fit_3d(robot: RobotKinematics, X: np.ndarray, w: np.ndarray, free: np.ndarr
 def _whole_turn_joint(robot: RobotKinematics, q: np.ndarray) -> int | None:
     """The first revolute joint (its index among the degrees of freedom) that turns every tracked point
     any joint moves, in the first frame of q (F, nq): an arm's first joint; None for a tree of legs."""
-    pos, jac = robot.jacobians(q[:1])
-    moves = np.linalg.norm(jac[0], axis=1) > 1e-9  # (J, nv)
+    moves = _point_movers(robot, q[:1])  # (J, nv)
     moved = moves.any(1)
     whole = np.flatnonzero(robot.turns_v & (moves | ~moved[:, None]).all(0) & moves.any(0))
     return int(whole[0]) if whole.size else None

@@ -39,6 +39,7 @@ import numpy as np
 from ..metrics import procrustes_align
 from .compiled import map_tasks
 from .kinematics import RobotKinematics, _relative_difference
+from .observability import _point_movers
 from .solver import _huber, _noise_sigma, _normal_equations
 from .views import similarity_align
 
@@ -350,12 +351,6 @@ def _window_medians(rn: np.ndarray, w: np.ndarray, size: int = POOR_FIT_WINDOW) 
     seen = (w > 0) & np.isfinite(rn)
     return np.array([np.median(sliding_window_view(rn[seen[:, j], j], size), axis=-1).max()
                      if seen[:, j].sum() >= size else 0.0 for j in range(rn.shape[1])])
-
-
-def _point_movers(robot: RobotKinematics, q: np.ndarray) -> np.ndarray:
-    """(J, nv) which joints move which tracked point, read from the Jacobians of five frames of q (F, nq)."""
-    frames = np.unique(np.linspace(0, len(q) - 1, min(len(q), 5)).round().astype(int))
-    return np.linalg.norm(robot.jacobians(q[frames])[1], axis=2).max(0) > 1e-9
 
 
 def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np.ndarray, sigma: float,
