@@ -82,6 +82,80 @@ def test_known_intrinsics_noise_free_exact(arm_fit, arm_trial):
     assert np.allclose(fit.intrinsics.K, tr.intrinsics.K) and fit.focal_px is None
 
 
+def test_a_weak_start_on_every_third_frame_still_gives_the_exact_angles(arm, arm_trial, monkeypatch):
+    # long sequences start the perspective fit from a weak fit on START_FRAMES of their frames; here the
+    # limit is lowered so that 30 frames take that route (every third frame, interpolated to the others)
+    import chainspace.robot.fit as fit_module
+
+    monkeypatch.setattr(fit_module, "START_FRAMES", 10)
+    assert fit_module._start_stride(np.ones((30, arm.n_joints))) == 3
+    fit = fit_joint_angles(_rough_reconstruction(arm_trial), chain=arm, tracks=arm_trial.tracks,
+                           intrinsics=arm_trial.intrinsics)
+    assert _worst_deg(fit, arm_trial) < 0.05
+    assert np.nanmax(np.abs(fit.reprojected() - arm_trial.tracks)) < 1e-2
+
+
+def test_a_doubtful_fit_from_a_sparse_start_is_made_again_from_every_frame(arm, arm_fit, arm_trial, monkeypatch):
+    # a joint flagged poor fit or not converged sends the fit back to a weak start on every frame; with every
+    # reason made to match, the result is the fit from every frame's start (arm_fit: 30 frames, stride 1)
+    import chainspace.robot.fit as fit_module
+
+    monkeypatch.setattr(fit_module, "START_FRAMES", 10)
+    monkeypatch.setattr(fit_module, "RESTART_FROM_ALL", ("",))
+    strides = []
+    spread = fit_module._start_stride
+    monkeypatch.setattr(fit_module, "_start_stride", lambda w: strides.append(spread(w)) or strides[-1])
+    fit = fit_joint_angles(_rough_reconstruction(arm_trial), chain=arm, tracks=arm_trial.tracks,
+                           intrinsics=arm_trial.intrinsics)
+    assert strides == [3]  # chosen once; the second fit is told its stride
+    assert np.array_equal(fit.q, arm_fit.q) and fit.message == arm_fit.message
+    assert 0 < fit.timings["sparse_start"] < fit.timings["total"]  # the first attempt's time is counted
+
+
+def test_a_pinhole_fit_names_face_on_frames_of_the_whole_sequence(arm, monkeypatch):
+    # (tests/test_fit.py's face-on trial, filmed by synthesize's pinhole camera.) The weak start sees every
+    # fourth frame; the frames named are the sequence's own, from the perspective fit
+    import chainspace.robot.fit as fit_module
+
+    monkeypatch.setattr(fit_module, "START_FRAMES", 10)
+    tr = synthesize(arm, n_frames=40, noise_px=0.0, seed=34, camera="pinhole")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_joint_angles(tr.positions, chain=arm, tracks=tr.tracks, intrinsics=tr.intrinsics)
+    assert "face-on in frames 0-33:" in fit.message and fit.message.count("one plane") == 1
+
+
+def test_a_point_seen_only_between_the_weak_starts_frames_keeps_every_frame(arm, monkeypatch):
+    import chainspace.robot.fit as fit_module
+
+    monkeypatch.setattr(fit_module, "START_FRAMES", 10)
+    w = np.ones((30, arm.n_joints))
+    w[::3, -1] = 0.0  # the tool seen only in the frames a stride of 3 would skip
+    assert fit_module._start_stride(w) == 1
+
+
+def test_a_spread_start_interpolates_continuous_joints_the_short_way(example_urdf):
+    # the Kinova Gen2's continuous joints hold (cos, sin): spreading a start across pi must not swing round
+    chain = chainspace.from_urdf(example_urdf("kinova"))
+    robot = RobotKinematics(chain.metadata["urdf_path"], chain)
+    a = np.tile(robot.angles(robot.q_rest[None])[0], (3, 1))
+    cont = [j for j in range(robot.nv) if robot.turns_v[j] and not robot.limited_v[j]][0]
+    a[:, cont] = [3.0, 3.0 + 0.2, 3.0 + 0.4]  # across the +-pi seam
+    st = dict(q=robot.from_angles(a), view=_static_view(5), blind=np.zeros(robot.nv, bool),
+              gauge=np.zeros(robot.nv, bool), free=None, free_prior=None)
+    from chainspace.robot.fit import _spread
+
+    out = _spread(robot, st, 5, 2, np.zeros((5, robot.nv), bool))
+    got = robot.angles(out["q"])[:, cont]
+    assert np.allclose(np.unwrap(got), [3.0, 3.1, 3.2, 3.3, 3.4]) and len(out["view"].cam_of) == 5
+
+
+def _static_view(n_sub):
+    from chainspace.robot.views import _View
+
+    return _View(np.ones(1), np.eye(3)[None], np.zeros((1, 2)), np.zeros(n_sub, int))
+
+
 def test_save_load_keeps_the_camera(arm_fit, tmp_path):
     paths = save_results(arm_fit, tmp_path / "fit")
     back = load_results([p for p in paths if str(p).endswith(".npz")][0])

@@ -102,7 +102,14 @@ variances of the best: a likelihood-ratio test), applies these rules:
 Perspective (a pinhole camera)
 ------------------------------
 With ``intrinsics`` (a camera with ``K`` and ``undistort``, or a 3x3 K) the tracks are undistorted and
-the weak-perspective fit above runs on them, without its smoothed choice among candidates; then one
+the weak-perspective fit above runs on them, without its smoothed choice among candidates, and on at most
+``START_FRAMES`` (100) of them evenly spread, its starts then interpolated in time to every frame (they
+only start the fit below, which chooses every frame's branch again: the weak fit was 44 % of a 300-frame
+perspective fit's time, docs/benchmarks.md, Robot fit speed, stop 56). Where the fit from those starts
+ends poor or not converged on a joint (``RESTART_FROM_ALL``), it is made again from a weak fit of every
+frame: on fast motions the sparse frames' branch search can miss the motion's basin (the Kinova from
+below, full ranges, 150 frames, pinhole seed 66: 45-111 degrees off, flagged poor; 0.2-0.8 from every
+frame); then one
 static pinhole camera ``u = f (R x + t)_xy / (R x + t)_z + c`` (rotation, translation in metres: the
 URDF fixes the scale) and the joint angles of every frame are fitted on the perspective reprojection
 error in pixels, with the same robust loss, confidences and acceleration prior (the view
@@ -212,6 +219,12 @@ from .weak_refine import WeakRefinement
 __all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"]
 
 
+# the most frames that the weak fit starting a perspective fit with known intrinsics looks at: it only gives
+# starts, whose branches the perspective fit chooses again in every frame (_start_stride)
+START_FRAMES = 100
+# the joint flags of such a fit that have it fitted again from a weak start on every frame (_fit_perspective)
+RESTART_FROM_ALL = ("poor fit: ", "not converged: ")
+FACE_ON_NOTE = "the tracked points beyond "
 PERSPECTIVE_HINT = ("a camera within a few robot reaches sees the robot in perspective, which this fit (given no "
                     "intrinsics or image size) does not model: pass intrinsics= (a calibration), "
                     "image_size=(width, height) or perspective=True (focal length and principal point "
@@ -523,12 +536,8 @@ def fit_joint_angles(
     observable = ~(blind | gauge)
     relative = gauge & ~blind & (not per_frame)
     notes = _notes(robot, blind, gauge & ~blind, per_frame)
-    if residual_px is not None:  # view: the fitted camera(s); its third row is the depth axis
-        for parent, turned, frames in _face_on_planes(robot, q, view.R[view.cam_of][:, 2]):
-            notes.append(f"the tracked points beyond {parent} lie in one plane that the camera sees within {FACE_ON_DEG:g} "
-                         f"degrees of face-on in frames {_frame_ranges(frames)}: there the motion can pass unseen "
-                         f"to its mirror image in depth ({', '.join(turned)} differ), so the branch after those "
-                         "frames is a guess; track a point off that plane (extra_frames) to settle it")
+    if residual_px is not None and (_starts is None or _assess):  # (a start's: the perspective fit names its own)
+        notes += _face_on_notes(robot, q, view)
     notes += trust.get("notes", [])
     if _starts is None and any(n.startswith("poor fit: ") for n in notes):
         # a user's own weak-perspective fit: close-range footage is the common cause (issue 17's pinhole
@@ -559,8 +568,9 @@ def fit_joint_angles(
 
 def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter, tol,
                      loss_scale_px, mirror, view_from, fps, accel_std, speed_decay_s, intrinsics,
-                     image_size, search_ties=True) -> JointFit:
-    """fit_joint_angles with a pinhole camera (module docstring, "Perspective")."""
+                     image_size, search_ties=True, start_stride: int | None = None) -> JointFit:
+    """fit_joint_angles with a pinhole camera (module docstring, "Perspective"); its weak start on every
+    ``start_stride``-th frame (None: :func:`_start_stride`)."""
     from ..cameras.pinhole import PinholeCamera, as_camera
     from .perspective import refine_perspective
 
@@ -588,22 +598,36 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         raise DescriptionError("a pinhole camera (intrinsics, image_size or perspective=True) needs the 2D tracks "
                                "(tracks=...)")
     tracks_u = cam.undistort(tracks) if cam is not None else tracks
-    starts: list = []
     stage("robot fit through a pinhole camera: first the weak-perspective fit, its start")
-    with warnings.catch_warnings():  # the weak fit only starts this one: its convergence is not the result's
-        warnings.simplefilter("ignore", ConvergenceWarning)
-        weak = fit_joint_angles(poses, urdf, chain=chain, tracks=tracks_u, confidence=confidence,
-                                camera="static", refine=True, transform=transform, max_iter=max_iter, tol=tol,
-                                loss_scale_px=loss_scale_px, mirror=mirror, view_from=view_from, fps=fps,
-                                # known intrinsics: perspective chooses among the candidates, so the weak
-                                # fit's smoothed choice among them is skipped (the perspective fit is smoothed)
-                                accel_std=accel_std if cam is None else None,
-                                speed_decay_s=speed_decay_s, search_ties=search_ties, _starts=starts,
-                                _assess=cam is None)
+    w2 = _weights(tracks_u, confidence)
+
+    def weak_fit(stride: int) -> tuple[JointFit, list]:
+        """The weak-perspective fit of every stride-th frame, and its starts for this one."""
+        every, found = slice(None, None, stride), []
+        with warnings.catch_warnings():  # the weak fit only starts this one: its convergence is not the result's
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            fit = fit_joint_angles(poses[every], urdf, chain=chain, tracks=tracks_u[every],
+                                   confidence=None if confidence is None else np.asarray(confidence)[every],
+                                   camera="static", refine=True, transform=transform, max_iter=max_iter, tol=tol,
+                                   loss_scale_px=loss_scale_px, mirror=mirror, view_from=view_from, fps=fps / stride,
+                                   # known intrinsics: perspective chooses among the candidates, so the weak
+                                   # fit's smoothed choice among them is skipped (the perspective fit is smoothed)
+                                   accel_std=accel_std if cam is None else None,
+                                   speed_decay_s=speed_decay_s, search_ties=search_ties, _starts=found,
+                                   _assess=cam is None)
+        return fit, found
+
+    # known intrinsics: the weak fit only gives starts, so it sees every stride-th frame (module docstring,
+    # "Perspective"); with the focal unknown it may be the reported fit
+    stride = (_start_stride(w2) if start_stride is None else start_stride) if cam is not None else 1
+    weak, starts = weak_fit(stride)
+    every = slice(None, None, stride)
     robot = weak.kinematics()
     weak_msg = weak.message.removeprefix("the solver stopped before it converged; ")
-    w2 = _weights(tracks_u, confidence)
-    weak_sse = float(np.nansum(weak.residual_px ** 2 * w2.sum(1)))
+    # the squared residuals of the frames it saw, scaled to all frames' observations
+    weak_sse = float(np.nansum(weak.residual_px ** 2 * w2[every].sum(1))) * w2.sum() / max(w2[every].sum(), 1e-300)
+    if stride > 1:
+        starts = [_spread(robot, st, len(tracks_u), stride, _unseen(robot, w2)) for st in starts]
     distinct: list = []
     for st in starts:  # the weak fit's winner and its distinct alternatives (mirror images, flips)
         if not any(_same_motion(robot, st["q"], d["q"]) for d in distinct):
@@ -643,8 +667,10 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     positions = s * pos_base @ R.T + t
     residual_3d = _rms_per_frame(np.linalg.norm(positions - np.nan_to_num(poses), axis=-1), w3)
     # the weak fit's ambiguities are perspective's to settle: its own (trust) notes replace them
-    msg = "; ".join(m for m in weak_msg.split("; ") if not m.startswith(
-        ("ambiguous: ", "poor fit: ", "uncertain: ", "not converged: ")))
+    # (and its face-on planes: their frames are the perspective fit's to name, and the weak fit may have seen
+    # only every stride-th frame)
+    msg = "; ".join(_face_on_notes(robot, q, view) + [m for m in weak_msg.split("; ") if not m.startswith(
+        ("ambiguous: ", "poor fit: ", "uncertain: ", "not converged: ", FACE_ON_NOTE))])
     observable, relative, msg = _pinhole_observability(robot, weak, best, msg)
     tie_note = "; the motion and its mirror image fit the data equally well (weak perspective)"
     if tie_note in msg:
@@ -663,6 +689,16 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     trust = best["trust"]  # q_std, noise_px, alternatives, ambiguous (chainspace.robot.uncertainty)
     msg += "".join("; " + n for n in trust["notes"])
     converged = np.broadcast_to(np.asarray(best["conv"], bool), (len(q),)).copy()
+    if stride > 1 and (not converged.all() or any(k in r for r in trust["reasons"] for k in RESTART_FROM_ALL)):
+        # the sparse start may be why (module docstring, "Perspective"): the fit again from every frame's start
+        stage(f"robot fit through a pinhole camera: a joint fitted poorly from the start on 1 frame in {stride}; "
+              "again from every frame")
+        sparse_s = time.perf_counter() - t0
+        again = _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter,
+                                 tol, loss_scale_px, mirror, view_from, fps, accel_std, speed_decay_s, intrinsics,
+                                 image_size, search_ties, start_stride=1)
+        again.timings.update(sparse_start=sparse_s, total=again.timings["total"] + sparse_s)
+        return again
     if not converged.all():
         msg = "the solver stopped before it converged; " + msg
         warnings.warn(f"fit_joint_angles: {msg}", ConvergenceWarning, stacklevel=2)
@@ -677,6 +713,43 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         q_std=trust["q_std"], noise_px=trust["noise_px"], alternatives=trust["alternatives"],
         ambiguous=trust["ambiguous"], joint_reasons=trust["reasons"], fps=float(fps),
     )
+
+
+def _face_on_notes(robot: RobotKinematics, q: np.ndarray, view) -> list[str]:
+    """The notes on planar parts seen nearly face-on (:func:`chainspace.robot.candidates._face_on_planes`)
+    in a fit of ``q`` (F, nq) through ``view`` (its cameras' third rows are the depth axes), with the
+    frames where each is."""
+    return [f"{FACE_ON_NOTE}{parent} lie in one plane that the camera sees within {FACE_ON_DEG:g} degrees of face-on "
+            f"in frames {_frame_ranges(frames)}: there the motion can pass unseen to its mirror image in depth "
+            f"({', '.join(turned)} differ), so the branch after those frames is a guess; track a point off that "
+            "plane (extra_frames) to settle it"
+            for parent, turned, frames in _face_on_planes(robot, q, view.R[view.cam_of][:, 2])]
+
+
+def _start_stride(w: np.ndarray) -> int:
+    """Every how many frames the weak fit that only starts a perspective fit (intrinsics known) looks:
+    at most :data:`START_FRAMES` of the frames of weights ``w`` (F, J), as evenly spread as a stride
+    allows; 1 where those frames would leave a tracked point unseen (the weak fit would hold at rest the
+    joints that only it shows)."""
+    stride = max(1, -(-len(w) // START_FRAMES))
+    return stride if ((w[::stride] > 0).any(0) == (w > 0).any(0)).all() else 1
+
+
+def _spread(robot: RobotKinematics, st: dict, n_frames: int, stride: int, unseen: np.ndarray) -> dict:
+    """A weak start fitted on every ``stride``-th frame, spread to all ``n_frames``: its per-dof angles
+    interpolated linearly in time (without whole-turn jumps), then held as on all frames
+    (:func:`chainspace.robot.observability._hold`, ``unseen`` (F, nv) the directions no seen point
+    moves in each frame). A static view applies to every frame as it is."""
+    t_sub = np.arange(0, n_frames, stride)
+    a = robot.angles(robot.continuous(st["q"]))  # (no whole-turn jumps to interpolate across)
+    t = np.arange(n_frames)
+    a = np.stack([np.interp(t, t_sub, a[:, i]) for i in range(robot.nv)], axis=1)
+    q = robot.clip(robot.from_angles(a))
+    view = st["view"]
+    view = type(view)(view.S, view.R, view.T, np.zeros(n_frames, int))
+    q, free = _hold(robot, q, st["blind"], st["gauge"], False, unseen)
+    free_prior = _hold(robot, q, st["blind"], st["gauge"], False, unseen & unseen.all(0))[1]
+    return dict(st, q=q, view=view, free=free, free_prior=free_prior)
 
 
 def _pinhole_observability(robot: RobotKinematics, weak: JointFit, best: dict,
