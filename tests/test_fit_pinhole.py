@@ -284,6 +284,26 @@ def test_far_camera_no_measurable_perspective(arm):
     assert rms.max() < 5.0  # the weak-perspective fit (its worst frame was 10 degrees off: measured)
 
 
+@pytest.mark.parametrize("far", [False, True])
+def test_the_focal_unknown_from_a_sparse_start(arm, arm_trial, monkeypatch, far):
+    # the focal-unknown fit's weak start on every third frame (START_FRAMES lowered for 30 frames): near, the
+    # focal and the angles come out as from every frame; far, the weak fit reported is the one of every frame
+    import chainspace.robot.fit as fit_module
+
+    tr = arm_trial if not far else synthesize(arm, n_frames=30, noise_px=1.0, seed=4, camera="pinhole",
+                                              focal_px=50 * 1450.0, distance_reaches=100.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        whole = fit_joint_angles(_rough_reconstruction(tr), chain=arm, tracks=tr.tracks, image_size=tr.image_size)
+        monkeypatch.setattr(fit_module, "START_FRAMES", 10)
+        sparse = fit_joint_angles(_rough_reconstruction(tr), chain=arm, tracks=tr.tracks, image_size=tr.image_size)
+    if far:
+        assert "no measurable perspective" in sparse.message and sparse.intrinsics is None
+        assert np.array_equal(sparse.q, whole.q) and sparse.q_std is not None
+    else:
+        assert abs(sparse.focal_px - 1450.0) < 1.45 and _worst_deg(sparse, tr) < 0.05
+
+
 def test_save_load_pinhole_fields_without_fitting(arm, tmp_path):
     from chainspace.cameras.pinhole import PinholeCamera
     from chainspace.robot.result import JointFit

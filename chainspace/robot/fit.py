@@ -105,7 +105,10 @@ With ``intrinsics`` (a camera with ``K`` and ``undistort``, or a 3x3 K) the trac
 the weak-perspective fit above runs on them, without its smoothed choice among candidates, and on at most
 ``START_FRAMES`` (100) of them evenly spread, its starts then interpolated in time to every frame (they
 only start the fit below, which chooses every frame's branch again: the weak fit was 44 % of a 300-frame
-perspective fit's time, docs/benchmarks.md, Robot fit speed, stop 56). Where the fit from those starts
+perspective fit's time, docs/benchmarks.md, Robot fit speed, stop 56). With the focal length unknown the
+same, except that on at most 100 frames the weak fit is the full one (smoothed, assessed), and on more
+it is made again in full on every frame where it is to be reported (no measurable perspective, below).
+Where the fit from those starts
 ends poor or not converged on a joint (``RESTART_FROM_ALL``), it is made again from a weak fit of every
 frame: on fast motions the sparse frames' branch search can miss the motion's basin (the Kinova from
 below, full ranges, 150 frames, pinhole seed 66: 45-111 degrees off, flagged poor; 0.2-0.8 from every
@@ -219,8 +222,8 @@ from .weak_refine import WeakRefinement
 __all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"]
 
 
-# the most frames that the weak fit starting a perspective fit with known intrinsics looks at: it only gives
-# starts, whose branches the perspective fit chooses again in every frame (_start_stride)
+# the most frames that the weak fit starting a perspective fit looks at: it only gives starts, whose branches
+# the perspective fit chooses again in every frame (_start_stride)
 START_FRAMES = 100
 # the joint flags of such a fit that have it fitted again from a weak start on every frame (_fit_perspective)
 RESTART_FROM_ALL = ("poor fit: ", "not converged: ")
@@ -400,7 +403,8 @@ def fit_joint_angles(
         tracks carry no measurable perspective the weak-perspective fit is reported, as with
         ``image_size``. It costs a perspective fit after the weak one: on close footage about the time
         of a fit given the intrinsics; where the weak fit already explains the tracks and its perspective
-        refit measures nothing (a far camera), about 1.2 times the weak fit's time.
+        refit measures nothing (a far camera), about 1.2 times the weak fit's time on up to 100 frames
+        and 1.4 times on more (the weak fit that starts it sees 100 of them, and the one reported all).
         False: weak perspective (``intrinsics`` and ``image_size`` must then be None).
     search_ties
         Also search beyond the fit's own candidates for motions that fit the tracks as well (depth flips
@@ -601,8 +605,9 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     stage("robot fit through a pinhole camera: first the weak-perspective fit, its start")
     w2 = _weights(tracks_u, confidence)
 
-    def weak_fit(stride: int) -> tuple[JointFit, list]:
-        """The weak-perspective fit of every stride-th frame, and its starts for this one."""
+    def weak_fit(stride: int, reported: bool) -> tuple[JointFit, list]:
+        """The weak-perspective fit of every stride-th frame, and its starts for this one; ``reported``: it
+        may be the answer (smoothed choice among its candidates, assessed), else it only gives starts."""
         every, found = slice(None, None, stride), []
         with warnings.catch_warnings():  # the weak fit only starts this one: its convergence is not the result's
             warnings.simplefilter("ignore", ConvergenceWarning)
@@ -610,17 +615,17 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
                                    confidence=None if confidence is None else np.asarray(confidence)[every],
                                    camera="static", refine=True, transform=transform, max_iter=max_iter, tol=tol,
                                    loss_scale_px=loss_scale_px, mirror=mirror, view_from=view_from, fps=fps / stride,
-                                   # known intrinsics: perspective chooses among the candidates, so the weak
-                                   # fit's smoothed choice among them is skipped (the perspective fit is smoothed)
-                                   accel_std=accel_std if cam is None else None,
+                                   # only starts: perspective chooses among the candidates, so the weak fit's
+                                   # smoothed choice among them is skipped (the perspective fit is smoothed)
+                                   accel_std=accel_std if reported else None,
                                    speed_decay_s=speed_decay_s, search_ties=search_ties, _starts=found,
-                                   _assess=cam is None)
+                                   _assess=reported)
         return fit, found
 
-    # known intrinsics: the weak fit only gives starts, so it sees every stride-th frame (module docstring,
-    # "Perspective"); with the focal unknown it may be the reported fit
-    stride = (_start_stride(w2) if start_stride is None else start_stride) if cam is not None else 1
-    weak, starts = weak_fit(stride)
+    # on a long sequence the weak fit only gives starts, so it sees every stride-th frame (module docstring,
+    # "Perspective"); with the focal unknown and every frame seen it may be the reported fit
+    stride = _start_stride(w2) if start_stride is None else start_stride
+    weak, starts = weak_fit(stride, cam is None and stride == 1)
     every = slice(None, None, stride)
     robot = weak.kinematics()
     weak_msg = weak.message.removeprefix("the solver stopped before it converged; ")
@@ -635,8 +640,10 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     t1 = time.perf_counter()
     # the focal unknown and the weak fit within the tracks' own jitter: its winner alone may tell that there
     # is no perspective (refine_perspective's early stop; with the intrinsics known there is none)
-    weak_fits = cam is None and camera_misfit(np.linalg.norm(weak.reprojected() - np.nan_to_num(tracks_u), axis=-1),
-                                              w2, track_jitter(tracks_u, w2))[0] <= CAMERA_MISFIT_RATIO
+    # (on the frames it saw; the jitter from every frame: a sample's is inflated by the motion between them)
+    weak_fits = cam is None and camera_misfit(
+        np.linalg.norm(weak.reprojected() - np.nan_to_num(tracks_u[every]), axis=-1), w2[every],
+        track_jitter(tracks_u, w2))[0] <= CAMERA_MISFIT_RATIO
     best = refine_perspective(robot, distinct, tracks_u, w2, None if cam is None else cam.K, image_size, accel_std,
                               fps, speed_decay_s, _unseen(robot, w2), max_iter, tol, weak_sse,
                               accel_std is not None, search_ties, weak_fits=bool(weak_fits))
@@ -644,6 +651,8 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     focal = best.get("focal")
     focal_std = best.get("focal_std")
     if not best["measured"]:
+        if stride > 1:  # the weak fit is the answer: made again on every frame, smoothed and assessed
+            weak = weak_fit(1, True)[0]
         if not weak.converged.all():
             warnings.warn(f"fit_joint_angles: {weak.message}", ConvergenceWarning, stacklevel=2)
         weak.message += "; " + best["reason"] + ": the weak-perspective fit is reported"
@@ -727,7 +736,7 @@ def _face_on_notes(robot: RobotKinematics, q: np.ndarray, view) -> list[str]:
 
 
 def _start_stride(w: np.ndarray) -> int:
-    """Every how many frames the weak fit that only starts a perspective fit (intrinsics known) looks:
+    """Every how many frames the weak fit that starts a perspective fit looks:
     at most :data:`START_FRAMES` of the frames of weights ``w`` (F, J), as evenly spread as a stride
     allows; 1 where those frames would leave a tracked point unseen (the weak fit would hold at rest the
     joints that only it shows)."""
