@@ -108,13 +108,12 @@ only start the fit below, which chooses every frame's branch again: the weak fit
 perspective fit's time, docs/benchmarks.md, Robot fit speed, stop 56). With the focal length unknown the
 same, except that on at most 100 frames the weak fit is the full one (smoothed, assessed), and on more
 it is made again in full on every frame where it is to be reported (no measurable perspective, below).
-Where the fit from those starts
-ends poor or not converged on a joint (``RESTART_FROM_ALL``), it is made again from a weak fit of every
-frame: on fast motions the sparse frames' branch search can miss the motion's basin (the Kinova from
-below, full ranges, 150 frames, pinhole seed 66: 45-111 degrees off, flagged poor; 0.2-0.8 from every
-frame); then one
-static pinhole camera ``u = f (R x + t)_xy / (R x + t)_z + c`` (rotation, translation in metres: the
-URDF fixes the scale) and the joint angles of every frame are fitted on the perspective reprojection
+Where the fit from those starts ends poor or not converged on a joint (``RESTART_FROM_ALL``), it is made
+again from a weak fit of every frame: on fast motions the sparse frames' branch search can miss the
+motion's basin (the Kinova from below, full ranges, 150 frames, pinhole seed 66: 45-111 degrees off,
+flagged poor; 0.2-0.8 from every frame). Then one static pinhole camera
+``u = f (R x + t)_xy / (R x + t)_z + c`` (rotation, translation in metres: the URDF fixes the scale)
+and the joint angles of every frame are fitted on the perspective reprojection
 error in pixels, with the same robust loss, confidences and acceleration prior (the view
 :class:`~chainspace.robot.views._PinholeView`; the solvers are the weak fit's). Its start: the weak
 camera's rotation, the depth of the robot's centroid ``f / s`` from the weak scale s (and, with K
