@@ -97,11 +97,14 @@ def test_a_weak_start_on_every_third_frame_still_gives_the_exact_angles(arm, arm
 
 def test_a_doubtful_fit_from_a_sparse_start_is_made_again_from_every_frame(arm, arm_fit, arm_trial, monkeypatch):
     # a joint flagged poor fit or not converged sends the fit back to a weak start on every frame; with every
-    # reason made to match, the result is the fit from every frame's start (arm_fit: 30 frames, stride 1)
+    # joint made to look poorly fitted, the result is the fit from every frame's start (arm_fit: 30 frames,
+    # stride 1)
     import chainspace.robot.fit as fit_module
+    import chainspace.robot.perspective as perspective
 
     monkeypatch.setattr(fit_module, "START_FRAMES", 10)
-    monkeypatch.setattr(fit_module, "RESTART_FROM_ALL", ("",))
+    trust = perspective._trust
+    monkeypatch.setattr(perspective, "_trust", lambda *a, **k: dict(trust(*a, **k), poor=np.ones(6, bool)))
     strides = []
     choose = fit_module._start_stride
     monkeypatch.setattr(fit_module, "_start_stride", lambda w: strides.append(choose(w)) or strides[-1])

@@ -108,8 +108,8 @@ only start the fit below, which chooses every frame's branch again: the weak fit
 perspective fit's time, docs/benchmarks.md, Robot fit speed, stop 56). With the focal length unknown the
 same, except that on at most 100 frames the weak fit is the full one (smoothed, assessed), and on more
 it is made again in full on every frame where it is to be reported (no measurable perspective, below).
-Where the fit from those starts ends poor or not converged on a joint (``RESTART_FROM_ALL``), it is made
-again from a weak fit of every frame: on fast motions the sparse frames' branch search can miss the
+Where the fit from those starts ends poor or not converged on a joint (the assessment's flags), it is
+made again from a weak fit of every frame: on fast motions the sparse frames' branch search can miss the
 motion's basin (the Kinova from below, full ranges, 150 frames, pinhole seed 66: 45-111 degrees off,
 flagged poor; 0.2-0.8 from every frame). Then one static pinhole camera
 ``u = f (R x + t)_xy / (R x + t)_z + c`` (rotation, translation in metres: the URDF fixes the scale)
@@ -212,7 +212,8 @@ from .result import JointFit
 from .views import _align, similarity_align
 from .solver import _rms_per_frame, _sequence_lm
 from .starts import _fit_3d
-from .observability import _fill_unseen, _gauge_directions, _hold, _notes, _structural, _unseen, _weights
+from .observability import _fill_unseen, _gauge_directions, _hold, _hold_with_prior, _notes, _structural, _unseen, \
+    _weights
 from .candidates import FACE_ON_DEG, _face_on_planes, _frame_ranges, _same_motion
 from .selection import _prefer_rest
 from .uncertainty import CAMERA_MISFIT_RATIO, camera_misfit, track_jitter
@@ -224,8 +225,6 @@ __all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"
 # the most frames that the weak fit starting a perspective fit looks at: it only gives starts, whose branches
 # the perspective fit chooses again in every frame (_start_stride)
 START_FRAMES = 100
-# the joint flags of such a fit that have it fitted again from a weak start on every frame (_fit_perspective)
-RESTART_FROM_ALL = ("poor fit: ", "not converged: ")
 FACE_ON_NOTE = "the tracked points beyond "
 PERSPECTIVE_HINT = ("a camera within a few robot reaches sees the robot in perspective, which this fit (given no "
                     "intrinsics or image size) does not model: pass intrinsics= (a calibration), "
@@ -630,8 +629,9 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     weak_msg = weak.message.removeprefix("the solver stopped before it converged; ")
     # the squared residuals of the frames it saw, scaled to all frames' observations
     weak_sse = float(np.nansum(weak.residual_px ** 2 * w2[every].sum(1))) * w2.sum() / max(w2[every].sum(), 1e-300)
+    unseen = _unseen(robot, w2)
     if stride > 1:
-        starts = [_spread(robot, st, len(tracks_u), stride, _unseen(robot, w2)) for st in starts]
+        starts = [_spread(robot, st, len(tracks_u), stride, unseen) for st in starts]
     distinct: list = []
     for st in starts:  # the weak fit's winner and its distinct alternatives (mirror images, flips)
         if not any(_same_motion(robot, st["q"], d["q"]) for d in distinct):
@@ -644,7 +644,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         np.linalg.norm(weak.reprojected() - np.nan_to_num(tracks_u[every]), axis=-1), w2[every],
         track_jitter(tracks_u, w2))[0] <= CAMERA_MISFIT_RATIO
     best = refine_perspective(robot, distinct, tracks_u, w2, None if cam is None else cam.K, image_size, accel_std,
-                              fps, speed_decay_s, _unseen(robot, w2), max_iter, tol, weak_sse,
+                              fps, speed_decay_s, unseen, max_iter, tol, weak_sse,
                               accel_std is not None, search_ties, weak_fits=bool(weak_fits))
     timings = dict(weak.timings, perspective=time.perf_counter() - t1)
     focal = best.get("focal")
@@ -697,7 +697,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     trust = best["trust"]  # q_std, noise_px, alternatives, ambiguous (chainspace.robot.uncertainty)
     msg += "".join("; " + n for n in trust["notes"])
     converged = np.broadcast_to(np.asarray(best["conv"], bool), (len(q),)).copy()
-    if stride > 1 and (not converged.all() or any(k in r for r in trust["reasons"] for k in RESTART_FROM_ALL)):
+    if stride > 1 and (not converged.all() or trust["poor"].any()):
         # the sparse start may be why (module docstring, "Perspective"): the fit again from every frame's start
         stage(f"robot fit through a pinhole camera: a joint fitted poorly from the start on 1 frame in {stride}; "
               "again from every frame")
@@ -755,8 +755,7 @@ def _spread(robot: RobotKinematics, st: dict, n_frames: int, stride: int, unseen
     q = robot.clip(robot.from_angles(a))
     view = st["view"]
     view = type(view)(view.S, view.R, view.T, np.zeros(n_frames, int))
-    q, free = _hold(robot, q, st["blind"], st["gauge"], False, unseen)
-    free_prior = _hold(robot, q, st["blind"], st["gauge"], False, unseen & unseen.all(0))[1]
+    q, free, free_prior = _hold_with_prior(robot, q, st["blind"], st["gauge"], False, unseen)
     return dict(st, q=q, view=view, free=free, free_prior=free_prior)
 
 

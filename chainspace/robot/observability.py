@@ -128,6 +128,16 @@ def _hold(robot: RobotKinematics, q: np.ndarray, blind: np.ndarray, gauge: np.nd
     return robot.clip(q), free
 
 
+def _hold_with_prior(robot: RobotKinematics, q: np.ndarray, blind: np.ndarray, gauge: np.ndarray, per_frame: bool,
+                     unseen: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_hold` with the directions ``unseen`` (F, nv) in each frame: (q, free, free_prior), where
+    ``free_prior`` are the free directions under the motion prior: there a direction unseen in some frames
+    follows its neighbours, and only one never seen stays held (the prior alone would leave its level and
+    trend free)."""
+    q, free = _hold(robot, q, blind, gauge, per_frame, unseen)
+    return q, free, _hold(robot, q, blind, gauge, per_frame, unseen & unseen.all(0))[1]
+
+
 def _notes(robot: RobotKinematics, blind: np.ndarray, gauge: np.ndarray, per_frame: bool) -> list[str]:
     names = _names_of_v(robot)
     notes = []

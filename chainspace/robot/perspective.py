@@ -30,7 +30,7 @@ import numpy as np
 
 from ..progress import stage, stage_steps
 from .kinematics import RobotKinematics, _rest_distance, _wrapped
-from .observability import _hold, _structural
+from .observability import _hold_with_prior, _structural
 from .compiled import map_tasks
 from .solver import _huber, _motion_prior, _noise_sigma, _normal_equations, _sequence_lm, _smooth_lm, \
     _smoothed_objective
@@ -251,9 +251,7 @@ def _pinhole_gauge(robot: RobotKinematics, st: dict, w: np.ndarray, unseen: np.n
     be corrected there, and seeds 10 and 27 ended 6.5 and 62 degrees RMS off (relative to frame 0),
     unflagged; held only where structural, 0.7 (flagged: a tie) and 0.3 degrees."""
     gauge = _structural(robot, w)[1] & ~st["blind"]
-    never = unseen & unseen.all(0)
-    q, free = _hold(robot, st["q"], st["blind"], gauge, False, unseen)
-    free_prior = _hold(robot, st["q"], st["blind"], gauge, False, never)[1]
+    q, free, free_prior = _hold_with_prior(robot, st["q"], st["blind"], gauge, False, unseen)
     if (gauge == st["gauge"]).all() and (free == st["free"]).all() and (free_prior == st["free_prior"]).all():
         return st  # held as the pinhole holds it already (a base point on the first axis: the arms)
     return dict(st, q=q, free=free, free_prior=free_prior, gauge=gauge)

@@ -180,6 +180,9 @@ AMBIGUOUS_DEG = 2.0
 # wrist_2 reported with 1.3 degrees, 3.0 off the truth; over 12 noise draws of the same motion its
 # deviations held (60 % within one) and 4 of the 12 ended more than 2 degrees RMS off
 UNCERTAIN_SIGMAS = 2.0
+# an alternative's difference (deg or mm) below this is not named beside an uncertain joint's deviation
+# (printed to one decimal it would read "0.0")
+NAMED_DIFFERENCE = 0.05
 
 
 def alternatives_of(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict]], sigma: float,
@@ -287,6 +290,13 @@ POOR_FIT_FLOOR = 1e-3
 JITTER_SLACK = 10.0
 
 
+def _point_noise(sigma: float, jitter: float) -> float:
+    """The pixel noise per coordinate that the point rules (:func:`poor_fit_joints`, :func:`base_offsets`)
+    judge by: the measured ``sigma``, or :data:`JITTER_SLACK` times the tracks' own ``jitter`` where that
+    is lower (NaN: not used), since a wrong basin pulls the measured noise up with it."""
+    return min(sigma, JITTER_SLACK * jitter) if np.isfinite(jitter) else sigma
+
+
 def track_jitter(tracks: np.ndarray, w: np.ndarray) -> float:
     """The tracks' own noise, pixels per coordinate, measured without any fit: a robust standard
     deviation of the second differences over three consecutive frames where a point is seen, over
@@ -386,7 +396,7 @@ def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np
     # against the noise, or the typical point's median where that is lower (the measured noise is a
     # median over every residual, which a badly fitted point pulls up)
     typical = typical if judged.any() else np.inf
-    noise = min(sigma, JITTER_SLACK * jitter) if np.isfinite(jitter) else sigma
+    noise = _point_noise(sigma, jitter)
     yardstick = max(min(noise * np.sqrt(2 * np.log(2)), typical), 1e-12)
     spell = _window_medians(rn, w)  # (a wrong path over a few frames only: the sequence's median misses it)
     missed = (med > POOR_FIT_RATIO * yardstick) & (med > POOR_FIT_FLOOR * extent) | \
@@ -461,8 +471,8 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     ``noise_px`` (the measured pixel noise), ``alternatives`` (:func:`alternatives_of`; ``scored``
     holds (objective, fit) pairs, objectives in units where a noise variance is ``var``), ``ambiguous``
     (nv,: tied, poorly fitted or uncertain; every joint where the solver stopped before it converged),
-    ``ambiguity_deg`` (nv,), ``notes`` (sentences for the fit's message) and ``reasons`` (nv strings: why
-    each flagged joint is flagged, "" for the rest).
+    ``ambiguity_deg`` (nv,), ``notes`` (sentences for the fit's message), ``reasons`` (nv strings: why
+    each flagged joint is flagged, "" for the rest) and ``poor`` (nv,: the poorly fitted joints among them).
 
     ``winner``: the reported fit (``out``, ``q``, ``free``/``free_prior``, ``delta``); ``prior``: the
     motion prior it was smoothed with, or None; ``wrong_side(fit)``: the camera-side rule, True where
@@ -503,8 +513,7 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
     poor &= ~blind
     misfit, typical = camera_misfit(winner["out"][2], w, jitter) if camera_assumed else (float("nan"), 0.0)
     whole = bool(misfit > CAMERA_MISFIT_RATIO and typical > POOR_FIT_FLOOR * extent)  # (noise-free: rounding)
-    based, offset, z_off = base_offsets(robot, q, view, tracks, w, min(noise, JITTER_SLACK * jitter)
-                                        if np.isfinite(jitter) else noise, extent)
+    based, offset, z_off = base_offsets(robot, q, view, tracks, w, _point_noise(noise, jitter), extent)
     if whole or based.any():
         poor = ~blind
     near = np.where(ambiguous, 0.0, worst)  # a tied joint is flagged for its tie: no second reason
@@ -546,7 +555,7 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
                      + (f" ({side_why})" if side_why else ""))
     if uncertain.any():
         names = [f"{robot.joint_names[k]} ({spread[k]:.1f} {unit[k]}" + (f", an alternative {near[k]:.1f} {unit[k]} "
-                 "away" if near[k] >= 0.05 else "") + ")" for k in np.flatnonzero(uncertain)]
+                 "away" if near[k] >= NAMED_DIFFERENCE else "") + ")" for k in np.flatnonzero(uncertain)]
         notes.append(f"uncertain: {', '.join(names)}: {UNCERTAIN_SIGMAS:g} reported standard deviations (RMS over "
                      f"the frames, fit.q_std), plus the difference from another motion that fits as well where "
                      f"there is one, are more than {AMBIGUOUS_DEG:g} degrees ({AMBIGUOUS_DEG:g} mm for a sliding "
@@ -564,12 +573,12 @@ def assess_fit(robot: RobotKinematics, winner: dict, scored: list[tuple[float, d
                        f"{worst[k]:.0f} {unit[k]} RMS (fit.alternatives)"),
         (uncertain[k], f"uncertain: standard deviation {spread[k]:.1f} {unit[k]} (RMS over the frames, fit.q_std): "
                        f"{UNCERTAIN_SIGMAS:g} of them" + (f", plus the {near[k]:.1f} {unit[k]} by which a motion "
-                       "that fits as well differs here (fit.alternatives)," if near[k] >= 0.05 else "")
+                       "that fits as well differs here (fit.alternatives)," if near[k] >= NAMED_DIFFERENCE else "")
                        + f" exceed the {AMBIGUOUS_DEG:g} {unit[k]} claimed")) if flag)
         for k in range(robot.nv)]
     ambiguous = ambiguous | poor | uncertain | stalled
     return dict(q_std=std, noise_px=noise, alternatives=alts, ambiguous=ambiguous, ambiguity_deg=worst, notes=notes,
-                reasons=reasons)
+                reasons=reasons, poor=poor)
 
 
 def _scorer(robot: RobotKinematics, winner: dict, scored: list[tuple[float, dict]], tracks: np.ndarray,

@@ -28,7 +28,7 @@ from .candidates import (SYMMETRY_MIRROR, TIE_VARIANCES, _base_keeping_mirror, _
                          _viterbi_reanchored)
 from .compiled import imap_tasks, map_tasks
 from .kinematics import RobotKinematics, _rest_distance, _roughness
-from .observability import _gauge_directions, _hold, _unseen
+from .observability import _gauge_directions, _hold, _hold_with_prior, _unseen
 from .selection import _most_probable, _prefer_rest, view_side_valid
 from .solver import _huber, _motion_prior, _noise_sigma, _rms_per_frame, _robust_scale, _sequence_lm
 from .starts import _fit_3d, _initial_camera, _sequential_ik
@@ -67,7 +67,6 @@ class WeakRefinement:
         # image-size tolerance for exact data: a thousandth of the tracks' extent (0.8 px at 800 px)
         self.px_floor = 1e-3 * float(max(np.ptp(tracks[..., 0][w2 > 0]), np.ptp(tracks[..., 1][w2 > 0])))
         self.unseen2 = _unseen(robot, w2)
-        self.never2 = self.unseen2 & self.unseen2.all(0)
         self.side_ok, self.side_why = view_side_valid(robot)  # legs hanging below their base: the side decides nothing
         self.base_mirror = _base_keeping_mirror(robot, (w2 > 0).any(0))
         # where the side decides nothing, the mirror image is searched far in joint space too, unless this fit
@@ -109,10 +108,8 @@ class WeakRefinement:
         P0, _ = _affine_camera(c["pos"], tracks, w2, per_frame)
         pos, jac = robot.jacobians(c["q"])
         g2 = (_gauge_directions(pos, jac, w2, P0, per_frame) | c["gauge"]) & ~blind
-        q, free = _hold(robot, c["q"], blind, g2 if per_frame else c["gauge"], per_frame, self.unseen2)
-        # with the smoothness prior, a direction unseen in some frames follows its neighbours there
-        # (one never seen stays held: the prior alone would leave its level and trend free)
-        free_prior = _hold(robot, c["q"], blind, g2 if per_frame else c["gauge"], per_frame, self.never2)[1]
+        q, free, free_prior = _hold_with_prior(robot, c["q"], blind, g2 if per_frame else c["gauge"], per_frame,
+                                               self.unseen2)
         view = c["camera0"] if "camera0" in c else _camera_view(c["pos"], tracks, w2, per_frame)
         # per-frame IK on the tracks with this camera (robust far from the solution), then all together
         if not c.get("whole_path"):  # a start from its first frame: rough elsewhere
@@ -294,8 +291,8 @@ class WeakRefinement:
         made, spent = self.reflection(r, self.depth_mirror(r), up_to_links=False)
         self.n_iter += spent
         c = made[0]
-        q = _hold(self.robot, c["q"], self.blind, c["gauge"], False, self.unseen2)[0]
-        return dict(r, c=c, q=q, free_prior=_hold(self.robot, q, self.blind, c["gauge"], False, self.never2)[1],
+        q, _, free_prior = _hold_with_prior(self.robot, c["q"], self.blind, c["gauge"], False, self.unseen2)
+        return dict(r, c=c, q=q, free_prior=free_prior,
                     view=_camera_view(self.robot.positions(q), self.tracks, self.w2, False))
 
     # ---- the search as a whole
