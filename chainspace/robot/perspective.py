@@ -36,7 +36,7 @@ from .solver import _huber, _motion_prior, _noise_sigma, _normal_equations, _seq
     _smoothed_objective
 from .views import _PinholeView, _camera_view, _pinhole_from_weak
 from .candidates import TIE_VARIANCES, _motion_distance, _pinhole_twin, _same_motion, _static_line_starts, \
-    _turned_twins, _viterbi_reanchored
+    _turned_twins, _view_moved_with, _viterbi_reanchored
 from .starts import _base_turns
 
 # a perspective fit must beat weak perspective's by this many noise variances (squared residuals, a
@@ -590,15 +590,16 @@ class PerspectiveRefinement:
                                                                           for o in fits)]
 
     def _twins_of_lead(self) -> None:
-        """The winner's mirror image, facing the camera as it does, and the winner turned about the first joint's
-        axis with the camera turned to match: its twins, which no start need reach (each refitted in full only
-        when a plain fit of it ties with the winner's: a big robot's mirror twin is far off)."""
+        """The winner's mirror image, facing the camera as it does, the winner turned about the first joint's
+        axis with the camera turned to match, and its near twins over the shoulder (:func:`_near_twin_starts`):
+        its twins, which no start need reach (each refitted in full only when a plain fit of it ties with the
+        winner's or beats it: a big robot's mirror twin is far off)."""
         robot, fits = self.robot, self.fits
         lead = fits[0]
         mirror = _pinhole_twin(robot, lead["q"], lead["view"], lead["free"], NEAR_MIRROR)
         var0 = _noise_variance(lead, self.w)
         twins = [(tw, tw is mirror) for tw in ([] if mirror is None else [mirror]) +
-                 _turned_twins(robot, lead["q"], lead["view"])]
+                 _turned_twins(robot, lead["q"], lead["view"]) + _near_twin_starts(robot, lead)]
         for (q_tw, v_tw), is_mirror in twins:
             if any(_same_motion(robot, q_tw, r["q"]) for r in fits):
                 continue
@@ -609,6 +610,21 @@ class PerspectiveRefinement:
             if self.tied(plain, lead, var0):
                 fits += self.finish(plain[0], plain[1], lead["start"], plain[5])
         self.contend([])
+
+
+def _near_twin_starts(robot: RobotKinematics, lead: dict) -> list[tuple[np.ndarray, _PinholeView]]:
+    """The fit ``lead``'s near twins (:func:`chainspace.robot.uncertainty._near_twins`), each with lead's camera
+    moved as the rigid motion that brings lead's points closest to the twin's moves the scene (where the
+    camera's turn stands in for the first joint's): [(q, view)], starts."""
+    from .uncertainty import _near_twins
+    from .views import similarity_align
+
+    pos = robot.positions(lead["q"])
+    out = []
+    for q_n in _near_twins(robot, lead["q"], lead["free"]):
+        _, A, b = similarity_align(pos, robot.positions(q_n), scale=False)
+        out.append((q_n, _view_moved_with(lead["view"], A, b)))
+    return out
 
 
 def _measured_perspective(robot: RobotKinematics, fit: dict, tracks: np.ndarray, w: np.ndarray, weak_sse: float,
