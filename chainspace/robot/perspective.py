@@ -51,7 +51,7 @@ FOCAL_REL_STD = 0.25
 # in the true motion's basin, 340 noise variances below the reported one's, which was reported
 # observable, 230 mm off
 MAX_STARTS = 3
-# the camera is also searched without weak perspective (:func:`_searched_start`) when the best fit from
+# the camera is also searched without weak perspective (:func:`_searched_starts`) when the best fit from
 # the weak starts leaves squared residuals above this many times what the tracks' jitter allows: the
 # milling arm at close range (nearest point 0.3 m from a 90-degree lens, 300 frames) ended at 8 times,
 # with its wrist on a wrong path; a fit at the noise is near 1 (chi-square over thousands of residuals).
@@ -135,8 +135,8 @@ def _pnp_camera(x: np.ndarray, tracks: np.ndarray, w: np.ndarray, f: float, c: n
     return _PinholeView(R[None], tv.reshape(1, 3), float(f), np.asarray(c, float), np.zeros(len(x), int), False)
 
 
-def _searched_start(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: np.ndarray, st: dict,
-                    K: np.ndarray | None, n_obs: int, weak_sse: float) -> tuple[np.ndarray, _PinholeView] | None:
+def _searched_starts(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: np.ndarray, st: dict,
+                     K: np.ndarray | None, n_obs: int, weak_sse: float) -> list[tuple[np.ndarray, _PinholeView]]:
     """A start owing nothing to weak perspective (:func:`chainspace.robot.pinhole_start.pinhole_start`:
     the camera searched on a few frames, every frame's joints by IK under it), when the best fit from
     the weak starts leaves squared residuals above :data:`SEARCH_ABOVE_NOISE` times what the tracks' own
@@ -145,7 +145,15 @@ def _searched_start(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: n
     ``weak_sse`` by more than :data:`LR_MARGIN` jitter variances; else None, and None where the best fit
     is not poor and the searched camera is its own (:func:`_same_view`) or one under which the IK's seeds
     miss most frames (:data:`chainspace.robot.pinhole_start.MOST_MISSED`). With the focal unknown the
-    search uses the best fit's. Returns (q (F, nq), camera) for the refinement.
+    search uses the best fit's. Returns [(q (F, nq), camera)] for the refinement: where the best fit is
+    poor, one from every distinct camera the search refined
+    (:func:`chainspace.robot.pinhole_start.pinhole_starts`), else one from its best camera.
+
+    Why every camera where the fit is poor: on the search's few frames a redundant arm's joints can fit a
+    wrong camera better than the true one, and only the motion prior on every frame tells them apart. The
+    xArm7 from above (full ranges, pinhole, 30 frames, seed 44): the winner's joint1 53 degrees off and
+    reported seen; on the six frames the best camera fits at 0.78 px^2 a point and the true one at 1.62;
+    the start from the search's fifth camera (4.37) ends 360 noise variances below the winner.
 
     Why only then: where the weak starts serve (far views) the fit is at the noise already and no
     better than weak perspective's, and the search costs seconds (the milling arm at close range, 300
@@ -154,39 +162,40 @@ def _searched_start(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: n
     every weak start can lie in another motion's basin. The double pendulum (one moving point, on
     joint1's circle; synthesize's pinhole camera, K known, 30 frames, seed 39): joint1 60 degrees RMS
     off from the weak starts, unflagged (:func:`_pinhole_gauge` applied); 0.2 degrees from this start."""
-    from .pinhole_start import MOST_MISSED, pinhole_start
+    from .pinhole_start import MOST_MISSED, pinhole_start, pinhole_starts
     from .uncertainty import track_jitter
 
     jitter = track_jitter(tracks, w)
     # exact tracks: a twentieth of the weak fit's image-size tolerance, as its ties have it
     noise = max(jitter, 0.05 * st["px_floor"])
     if not np.isfinite(jitter):
-        return None
+        return []
     poor = best["sse"] > SEARCH_ABOVE_NOISE * n_obs * noise ** 2
     measurable = weak_sse - best["sse"] > LR_MARGIN * noise ** 2
     if not (poor or measurable):
-        return None
+        return []
     view = best["view"]
+    K = view.K if K is None else K
+    if poor:
+        found = pinhole_starts(robot, tracks, w, st["free"], st["gauge"], K)
+    else:
     # the winner's own camera found again: refining its start would only find the winner again. Not
     # where the winner is poor: its camera can be right and its path wrong, and the search's per-frame
     # IK under that camera is then what mends the path (the milling arm at close range, K known, 300
     # frames: the searched camera passed for the winner's; skipped, joints a3, a4 and a6 ended 1.0, 6.8
     # and 12.9 degrees RMS off, against 0.08, 0.33 and 0.27 with the searched start refined)
-    same = None if poor else (lambda pv, q, frames: _same_view(robot, pv, view) or _same_view(
-        robot, pv, _gauge_turned(robot, best["q"][frames], view, st["gauge"], q)))
-    found = pinhole_start(robot, tracks, w, st["free"], st["gauge"], view.K if K is None else K, same,
-                          None if poor else MOST_MISSED)
-    if found is None:
-        return None
-    q, pv = found
-    return q, replace(pv, fit_focal=view.fit_focal, fit_centre=view.fit_centre)
+        same = (lambda pv, q, frames: _same_view(robot, pv, view) or _same_view(
+            robot, pv, _gauge_turned(robot, best["q"][frames], view, st["gauge"], q)))
+        one = pinhole_start(robot, tracks, w, st["free"], st["gauge"], K, same, MOST_MISSED)
+        found = [] if one is None else [one]
+    return [(q, replace(pv, fit_focal=view.fit_focal, fit_centre=view.fit_centre)) for q, pv in found]
 
 
 def _same_view(robot: RobotKinematics, a: _PinholeView, b: _PinholeView) -> bool:
     """Whether two static pinhole cameras see the robot alike: rotations within :data:`SAME_VIEW_DEG`
     of each other and the robot's root at depths within :data:`SAME_VIEW_DEPTH` of each other.
 
-    Why: the searched start (:func:`_searched_start`) costs IK in every frame and a full refinement;
+    Why: the searched start (:func:`_searched_starts`) costs IK in every frame and a full refinement;
     where its camera is the winner's own, they only find the winner again (the milling arm, K known,
     100 frames, seed 0: the search's camera 0.2 degrees from the winner's, at the same depth)."""
     cos = (np.trace(a.R[0].T @ b.R[0]) - 1.0) / 2.0
@@ -557,9 +566,8 @@ class PerspectiveRefinement:
         other = stage_steps("robot fit, perspective: other minima (a searched camera, grafts, twins, turns about the "
                             "base's line, windows, turned joints), search", 6)
         other(0)
-        searched = _searched_start(robot, fits[0], tr, w, starts[0], self.K, self.n_obs, weak_sse)
-        if searched is not None:  # one more contender, on the objective like the others
-            self.contend(self.finish(*searched, starts[0], 0))
+        for searched in _searched_starts(robot, fits[0], tr, w, starts[0], self.K, self.n_obs, weak_sse):
+            self.contend(self.finish(*searched, starts[0], 0))  # more contenders, on the objective like the others
         # (the given starts only: a turned start's tails beyond the first joint are its original's)
         other(1)
         grafted = _grafted(robot, fits[0], [st["q"] for st in starts] + [r["q"] for r in fits[1:]], tr, w)

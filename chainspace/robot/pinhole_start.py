@@ -38,6 +38,8 @@ DEPTH_FACTORS = (1.0, 2.0, 4.0)
 # seeds per frame, and the Huber threshold of that fit as a fraction of the tracks' extent
 N_REFINED = 8
 N_RANDOM_SEEDS = 8
+# refined candidates whose rotations lie closer than this are one camera (:func:`search_cameras`)
+DISTINCT_CAMERA_DEG = 5.0
 # a frame whose best squared residuals exceed this many times what the noise allows gets RETRY_SEEDS more
 RETRY_ABOVE_NOISE = 5.0
 RETRY_SEEDS = 96
@@ -171,7 +173,17 @@ def search_camera(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, fre
                   K: np.ndarray, frames: np.ndarray) -> tuple[float, _PinholeView, np.ndarray] | None:
     """The static pinhole camera (known K (3, 3), square pixels) that best explains the tracks (F, J, 2)
     of ``frames``, with their joint angles: (median over the frames of the mean squared residual px^2,
-    camera, q (len(frames), nq)); None when no candidate sees every point in front of it.
+    camera, q (len(frames), nq)); None when no candidate sees every point in front of it. The first of
+    :func:`search_cameras`."""
+    ranked = search_cameras(robot, tracks, w, free, K, frames)
+    return ranked[0] if ranked else None
+
+
+def search_cameras(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, free: np.ndarray,
+                   K: np.ndarray, frames: np.ndarray) -> list[tuple[float, _PinholeView, np.ndarray]]:
+    """The candidates of :func:`search_camera`, each as (cost, camera, q), lowest cost first: those that
+    see every point in front of them, and distinct (rotations more than :data:`DISTINCT_CAMERA_DEG` apart:
+    refined candidates often meet).
 
     Rotations spread over SO(3) (:func:`chainspace.robot.starts._rotation_candidates`), each with the
     robot's root on its track at :data:`DEPTH_FACTORS` times the depth its image size suggests, ranked
@@ -214,11 +226,17 @@ def search_camera(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, fre
                                               100, 1e-10, HUBER_EXTENT * extent)
         return float(_cost(rnj[None], w[frames][None])[0]), view, qj
 
-    best = None
-    for cj, view, qj in map_tasks(robot, refined, np.argsort(cost)[:N_REFINED]):
-        if view.apply(robot.positions(qj))[1][..., 2].min() > 0 and (best is None or cj < best[0]):
-            best = (cj, view, qj)
-    return best
+    ranked: list[tuple[float, _PinholeView, np.ndarray]] = []
+    for cj, view, qj in sorted(map_tasks(robot, refined, np.argsort(cost)[:N_REFINED]), key=lambda r: r[0]):
+        if view.apply(robot.positions(qj))[1][..., 2].min() > 0 and not any(
+                _turn_deg(view.R[0], o[1].R[0]) <= DISTINCT_CAMERA_DEG for o in ranked):
+            ranked.append((cj, view, qj))
+    return ranked
+
+
+def _turn_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """The angle (degrees) of the rotation between rotations a and b (3, 3)."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(a.T @ b) - 1.0) / 2.0, -1.0, 1.0))))
 
 
 def pinhole_start(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, free: np.ndarray,
@@ -238,15 +256,40 @@ def pinhole_start(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, fre
     given, a test of the searched camera, its search frames' joints q (n, nq) and those frames (n,):
     True returns None before every frame's IK (a view the caller has already:
     :func:`chainspace.robot.perspective._same_view`)."""
-    F = len(tracks)
-    good = np.flatnonzero((w > 0).sum(1) >= 3)
-    if len(good) < 2:
+    frames = _search_frames(w)
+    if frames is None:
         return None
-    frames = good[np.unique(np.linspace(0, len(good) - 1, SEARCH_FRAMES).round().astype(int))]
     found = search_camera(robot, tracks, w, free, K, frames)
     if found is None or skip is not None and skip(found[1], found[2], frames):
         return None
-    view = _PinholeView(found[1].R, found[1].t, found[1].f, found[1].c, np.zeros(F, int))
+    return _continued(robot, tracks, w, free, gauge, found[1], missed_max)
+
+
+def pinhole_starts(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, free: np.ndarray,
+                   gauge: np.ndarray, K: np.ndarray) -> list[tuple[np.ndarray, _PinholeView]]:
+    """:func:`pinhole_start` from every distinct camera of the search (:func:`search_cameras`), best
+    first: [(q (F, nq), camera)]."""
+    frames = _search_frames(w)
+    if frames is None:
+        return []
+    found = [_continued(robot, tracks, w, free, gauge, view, None)
+             for _, view, _ in search_cameras(robot, tracks, w, free, K, frames)]
+    return [f for f in found if f is not None]
+
+
+def _search_frames(w: np.ndarray) -> np.ndarray | None:
+    """:data:`SEARCH_FRAMES` frames spread over those with three points or more seen (None: under two)."""
+    good = np.flatnonzero((w > 0).sum(1) >= 3)
+    if len(good) < 2:
+        return None
+    return good[np.unique(np.linspace(0, len(good) - 1, SEARCH_FRAMES).round().astype(int))]
+
+
+def _continued(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, free: np.ndarray, gauge: np.ndarray,
+               found: _PinholeView, missed_max: float | None) -> tuple[np.ndarray, _PinholeView] | None:
+    """Every frame's joints under the searched camera ``found``, as :func:`pinhole_start` makes them."""
+    F = len(tracks)
+    view = _PinholeView(found.R, found.t, found.f, found.c, np.zeros(F, int))
     uz = np.nan_to_num(tracks)
     qs, err = _multi_seed_ik(robot, uz, w, view, free)
     jitter = track_jitter(tracks, w)
