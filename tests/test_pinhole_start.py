@@ -59,18 +59,20 @@ def test_the_searched_start_finds_the_close_camera(close_clip):
     assert np.all(view.apply(robot.positions(q))[1][..., 2] > 0)
 
 
-@pytest.mark.parametrize("sse, weak_sse, searched, skips", [
-    (1e9, 1e9, True, False),   # poor: the winner's camera may be right and its path wrong
-    (0.0, 1e9, True, True),    # measurable only: the winner's own camera found again is skipped
-    (0.0, 0.0, False, None),   # neither: no search
+@pytest.mark.parametrize("sse, weak_sse, expected", [
+    (1e9, 1e9, ["every camera"]),  # poor: the winner's camera may be right and its path wrong, and a wrong
+                                   # camera may fit the search's frames best
+    (0.0, 1e9, [True]),            # measurable only: the winner's own camera found again is skipped
+    (0.0, 0.0, []),                # neither: no search
 ])
 def test_the_search_skips_the_winners_own_camera_only_where_the_winner_is_not_poor(
-        close_clip, monkeypatch, sse, weak_sse, searched, skips):
+        close_clip, monkeypatch, sse, weak_sse, expected):
     """The milling arm at close range, 300 frames, K known: the searched camera passed for the poor
     winner's own, and skipping it left joints a4 and a6 6.8 and 12.9 degrees RMS off (0.33 and 0.27
-    with the searched start refined)."""
+    with the searched start refined). Where the winner is poor, a start from every camera the search
+    refined (pinhole_starts), none skipped."""
     import chainspace.robot.pinhole_start as ps
-    from chainspace.robot.perspective import _searched_start
+    from chainspace.robot.perspective import _searched_starts
     from chainspace.robot.views import _PinholeView
 
     robot, tr = close_clip
@@ -83,16 +85,41 @@ def test_the_search_skips_the_winners_own_camera_only_where_the_winner_is_not_po
 
     def fake_start(robot_, tracks, w, free_, gauge_, K_, skip=None, missed_max=None):
         frames = np.arange(3)
-        calls.append(None if skip is None else skip(view, tr.q[frames], frames))
+        calls.append(skip(view, tr.q[frames], frames))
         # (and a camera under which the seeds miss most frames is no start there: see the next test)
-        assert (missed_max is None) == (not skips)
+        assert missed_max is not None
         return None
 
+    def fake_starts(robot_, tracks, w, free_, gauge_, K_):
+        calls.append("every camera")
+        return []
+
     monkeypatch.setattr(ps, "pinhole_start", fake_start)
+    monkeypatch.setattr(ps, "pinhole_starts", fake_starts)
     w = np.ones(tr.tracks.shape[:2])
     st = {"px_floor": 1.0, "free": free, "gauge": gauge}
-    assert _searched_start(robot, best, tr.tracks, w, st, K, w.sum() * 2, weak_sse) is None
-    assert calls == ([None if not skips else True] if searched else []), calls
+    assert _searched_starts(robot, best, tr.tracks, w, st, K, w.sum() * 2, weak_sse) == []
+    assert calls == expected, calls
+
+
+def test_the_search_ranks_distinct_cameras_and_its_best_is_the_searched_camera(close_clip):
+    """search_cameras: the refined candidates that see the robot in front, lowest cost first, no two within
+    DISTINCT_CAMERA_DEG of each other; search_camera is its first."""
+    import chainspace.robot.pinhole_start as ps
+
+    robot, tr = close_clip
+    gauge, free = _first_joint_gauge(robot, len(tr.tracks))
+    w = np.ones(tr.tracks.shape[:2])
+    frames = ps._search_frames(w)
+    ranked = ps.search_cameras(robot, tr.tracks, w, free, tr.intrinsics.K, frames)
+    assert 1 <= len(ranked) <= ps.N_REFINED
+    costs = [r[0] for r in ranked]
+    assert costs == sorted(costs)
+    for i in range(len(ranked)):
+        for j in range(i):
+            assert ps._turn_deg(ranked[i][1].R[0], ranked[j][1].R[0]) > ps.DISTINCT_CAMERA_DEG
+    best = ps.search_camera(robot, tr.tracks, w, free, tr.intrinsics.K, frames)
+    assert best[0] == ranked[0][0] and np.allclose(best[1].R, ranked[0][1].R)
 
 
 @pytest.mark.parametrize("turned_deg, missed_max, started", [(0.0, 0.5, True), (40.0, 0.5, False), (40.0, None, True)])
