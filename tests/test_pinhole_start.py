@@ -117,7 +117,7 @@ def test_the_search_ranks_distinct_cameras_and_its_best_is_the_searched_camera(c
     assert costs == sorted(costs)
     for i in range(len(ranked)):
         for j in range(i):
-            assert ps._turn_deg(ranked[i][1].R[0], ranked[j][1].R[0]) > ps.DISTINCT_CAMERA_DEG
+            assert ps.turn_between_deg(ranked[i][1].R[0], ranked[j][1].R[0]) > ps.DISTINCT_CAMERA_DEG
     best = ps.search_camera(robot, tr.tracks, w, free, tr.intrinsics.K, frames)
     assert best[0] == ranked[0][0] and np.allclose(best[1].R, ranked[0][1].R)
 

@@ -34,7 +34,7 @@ from .observability import _hold_with_prior, _structural
 from .compiled import map_tasks
 from .solver import _huber, _motion_prior, _noise_sigma, _normal_equations, _sequence_lm, _smooth_lm, \
     _smoothed_objective
-from .views import _PinholeView, _camera_view, _pinhole_from_weak
+from .views import _PinholeView, _camera_view, _pinhole_from_weak, turn_between_deg
 from .candidates import TIE_VARIANCES, _motion_distance, _pinhole_twin, _same_motion, _static_line_starts, \
     _turned_twins, _view_moved_with, _viterbi_reanchored
 from .starts import _base_turns
@@ -137,12 +137,12 @@ def _pnp_camera(x: np.ndarray, tracks: np.ndarray, w: np.ndarray, f: float, c: n
 
 def _searched_starts(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: np.ndarray, st: dict,
                      K: np.ndarray | None, n_obs: int, weak_sse: float) -> list[tuple[np.ndarray, _PinholeView]]:
-    """A start owing nothing to weak perspective (:func:`chainspace.robot.pinhole_start.pinhole_start`:
+    """Starts owing nothing to weak perspective (:func:`chainspace.robot.pinhole_start.pinhole_start`:
     the camera searched on a few frames, every frame's joints by IK under it), when the best fit from
     the weak starts leaves squared residuals above :data:`SEARCH_ABOVE_NOISE` times what the tracks' own
     jitter (:func:`chainspace.robot.uncertainty.track_jitter`; on exact tracks, a twentieth of the weak
     fit's image-size tolerance ``px_floor``) allows, or beats weak perspective's squared residuals
-    ``weak_sse`` by more than :data:`LR_MARGIN` jitter variances; else None, and None where the best fit
+    ``weak_sse`` by more than :data:`LR_MARGIN` jitter variances; else none, and none where the best fit
     is not poor and the searched camera is its own (:func:`_same_view`) or one under which the IK's seeds
     miss most frames (:data:`chainspace.robot.pinhole_start.MOST_MISSED`). With the focal unknown the
     search uses the best fit's. Returns [(q (F, nq), camera)] for the refinement: where the best fit is
@@ -177,13 +177,13 @@ def _searched_starts(robot: RobotKinematics, best: dict, tracks: np.ndarray, w: 
     view = best["view"]
     K = view.K if K is None else K
     if poor:
+        # none skipped: the winner's camera can be right and its path wrong, and the search's per-frame IK
+        # under that camera is then what mends the path (the milling arm at close range, K known, 300
+        # frames: the searched camera passed for the winner's; skipped, joints a3, a4 and a6 ended 1.0,
+        # 6.8 and 12.9 degrees RMS off, against 0.08, 0.33 and 0.27 with the searched start refined)
         found = pinhole_starts(robot, tracks, w, st["free"], st["gauge"], K)
     else:
-    # the winner's own camera found again: refining its start would only find the winner again. Not
-    # where the winner is poor: its camera can be right and its path wrong, and the search's per-frame
-    # IK under that camera is then what mends the path (the milling arm at close range, K known, 300
-    # frames: the searched camera passed for the winner's; skipped, joints a3, a4 and a6 ended 1.0, 6.8
-    # and 12.9 degrees RMS off, against 0.08, 0.33 and 0.27 with the searched start refined)
+        # the winner's own camera found again: refining its start would only find the winner again
         same = (lambda pv, q, frames: _same_view(robot, pv, view) or _same_view(
             robot, pv, _gauge_turned(robot, best["q"][frames], view, st["gauge"], q)))
         one = pinhole_start(robot, tracks, w, st["free"], st["gauge"], K, same, MOST_MISSED)
@@ -198,8 +198,7 @@ def _same_view(robot: RobotKinematics, a: _PinholeView, b: _PinholeView) -> bool
     Why: the searched start (:func:`_searched_starts`) costs IK in every frame and a full refinement;
     where its camera is the winner's own, they only find the winner again (the milling arm, K known,
     100 frames, seed 0: the search's camera 0.2 degrees from the winner's, at the same depth)."""
-    cos = (np.trace(a.R[0].T @ b.R[0]) - 1.0) / 2.0
-    if np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) > SAME_VIEW_DEG:
+    if turn_between_deg(a.R[0], b.R[0]) > SAME_VIEW_DEG:
         return False
     root = robot.positions(robot.q_rest)[0, robot.chain.joint_index(robot.chain.root)]
     za, zb = a.R[0, 2] @ root + a.t[0, 2], b.R[0, 2] @ root + b.t[0, 2]

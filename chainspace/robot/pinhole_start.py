@@ -27,7 +27,7 @@ from .kinematics import RobotKinematics, _held_q, _random_q, _seeded
 from .solver import _sequence_lm
 from .starts import _rotation_candidates, _sequential_ik
 from .uncertainty import track_jitter
-from .views import _PinholeView, _pinhole_pixels, _pinhole_pixels_by_point
+from .views import _PinholeView, _pinhole_pixels, _pinhole_pixels_by_point, turn_between_deg
 
 # the search's frames (spread over the sequence); depths of the robot's root tried per rotation, as
 # multiples of the depth its image size suggests (f / px per metre, which a robot reaching towards the
@@ -229,14 +229,10 @@ def search_cameras(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, fr
     ranked: list[tuple[float, _PinholeView, np.ndarray]] = []
     for cj, view, qj in sorted(map_tasks(robot, refined, np.argsort(cost)[:N_REFINED]), key=lambda r: r[0]):
         if view.apply(robot.positions(qj))[1][..., 2].min() > 0 and not any(
-                _turn_deg(view.R[0], o[1].R[0]) <= DISTINCT_CAMERA_DEG for o in ranked):
+                turn_between_deg(view.R[0], o[1].R[0]) <= DISTINCT_CAMERA_DEG for o in ranked):
             ranked.append((cj, view, qj))
     return ranked
 
-
-def _turn_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """The angle (degrees) of the rotation between rotations a and b (3, 3)."""
-    return float(np.degrees(np.arccos(np.clip((np.trace(a.T @ b) - 1.0) / 2.0, -1.0, 1.0))))
 
 
 def pinhole_start(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, free: np.ndarray,

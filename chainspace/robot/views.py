@@ -34,6 +34,11 @@ def similarity_align(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | Non
     return s, R, mb - s * R @ ma
 
 
+def turn_between_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """The angle (degrees) of the rotation between rotations a and b (3, 3)."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(a.T @ b) - 1.0) / 2.0, -1.0, 1.0))))
+
+
 def _skew(v: np.ndarray) -> np.ndarray:
     """(..., 3) -> (..., 3, 3) cross-product matrices (entries written in place: nested np.stack
     cost more than the products the solvers make with them)."""
