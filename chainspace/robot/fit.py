@@ -744,15 +744,14 @@ def _start_stride(w: np.ndarray) -> int:
 
 
 def _spread(robot: RobotKinematics, st: dict, n_frames: int, stride: int, unseen: np.ndarray) -> dict:
-    """A weak start fitted on every ``stride``-th frame, spread to all ``n_frames``: its per-dof angles
-    interpolated linearly in time (without whole-turn jumps), then held as on all frames
+    """A weak start fitted on every ``stride``-th frame, spread to all ``n_frames``: the frames between
+    them filled as unseen ones are (:func:`chainspace.robot.observability._fill_unseen`: per-dof angles
+    unwrapped and interpolated linearly in time), then held as on all frames
     (:func:`chainspace.robot.observability._hold`, ``unseen`` (F, nv) the directions no seen point
     moves in each frame). A static view applies to every frame as it is."""
-    t_sub = np.arange(0, n_frames, stride)
-    a = robot.angles(robot.continuous(st["q"]))  # (no whole-turn jumps to interpolate across)
-    t = np.arange(n_frames)
-    a = np.stack([np.interp(t, t_sub, a[:, i]) for i in range(robot.nv)], axis=1)
-    q = robot.clip(robot.from_angles(a))
+    between = np.ones((n_frames, robot.nv), bool)
+    between[::stride] = False
+    q = _fill_unseen(robot, np.repeat(st["q"], stride, axis=0)[:n_frames], between)
     view = st["view"]
     view = type(view)(view.S, view.R, view.T, np.zeros(n_frames, int))
     q, free, free_prior = _hold_with_prior(robot, q, st["blind"], st["gauge"], False, unseen)
