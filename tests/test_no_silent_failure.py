@@ -667,10 +667,14 @@ def test_a_poor_pinhole_fit_of_a_redundant_arm_tries_every_searched_camera(examp
     assert not [r["name"] for r in rows if r["verdict"] == "silent"], rows
 
 
-def test_a_quadruped_through_a_pinhole_camera_keeps_its_legs_on_their_branches(example_urdf):
-    """The Solo12 from above through a pinhole camera, full ranges, seed 45: with the perspective fit's own
+@pytest.mark.parametrize("setting, seed", [("full, above", 45), ("full, below", 79)])
+def test_a_quadruped_through_a_pinhole_camera_keeps_its_legs_on_their_branches(setting, seed, example_urdf):
+    """The Solo12 through a pinhole camera, full ranges. From above, seed 45: with the perspective fit's own
     depth flips (its branch choice under the pinhole camera) cut at 15 iterations, as the weak fit's are, the
-    front left leg ended 5, 34 and 32 degrees off, reported observable (candidates._depth_flips)."""
+    front left leg ended 5, 34 and 32 degrees off, reported observable (candidates._depth_flips). From below,
+    seed 79 (a fresh seed of stop 58): the front left hip and knee parted from the truth over the last 12
+    frames, up to 39 degrees, reported observable, in a minimum 69 noise variances above the truth's, until the
+    winner's paths were moved towards the sequence's ends and refitted (perspective._end_moves)."""
     example_urdf("solo12")
-    rows = _judged("solo12", "full, above", 45, camera="pinhole")
+    rows = _judged("solo12", setting, seed, camera="pinhole")
     assert not [r["name"] for r in rows if r["verdict"] == "silent"], rows
