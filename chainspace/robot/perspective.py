@@ -559,11 +559,11 @@ class PerspectiveRefinement:
         """Six searches around the best fit, each a step of the stage's log (a count and the time left: 3.5 s
         in the demo at 300 frames): a camera searched without weak perspective, the other ``starts``' (the
         given ones, as :meth:`_from_starts` takes them) branches grafted onto the winner, its twins, its
-        turns about the base's line and its windows join ``fits``; its loosest joints turned whole are
-        returned, for :meth:`run` to weigh."""
+        turns about the base's line, its windows and its path moved towards the ends join ``fits``; its
+        loosest joints turned whole are returned, for :meth:`run` to weigh."""
         robot, tr, w, fits = self.robot, self.tr, self.w, self.fits
         other = stage_steps("robot fit, perspective: other minima (a searched camera, grafts, twins, turns about the "
-                            "base's line, windows, turned joints), search", 6)
+                            "base's line, windows and ends, turned joints), search", 6)
         other(0)
         for searched in _searched_starts(robot, fits[0], tr, w, starts[0], self.K, self.n_obs, weak_sse):
             self.contend(self.finish(*searched, starts[0], 0))  # more contenders, on the objective like the others
@@ -586,8 +586,9 @@ class PerspectiveRefinement:
         # window only, which no whole-sequence candidate is (a tie then reported, or a lower one the winner)
         other(4)
         lead = fits[0]
-        self.contend([r for r in _weak_windows(robot, lead, tr, w, self.fps) + _end_moves(robot, lead, tr, w, self.fps)
-                      if not _same_motion(robot, r["q"], lead["q"])])
+        # and moved towards the sequence's ends, where the motion prior holds it from one side only
+        moved = _weak_windows(robot, lead, tr, w, self.fps) + _end_moves(robot, lead, tr, w, self.fps)
+        self.contend([r for r in moved if not _same_motion(robot, r["q"], lead["q"])])
         # and its loosest joints turned whole: minima tens of degrees away along them, beyond the windows' reach.
         # A turned fit takes over only where the tracks prefer it beyond the tie tolerance; within it, the one the
         # starts reached stays and the turned one is reported as a tie (among minima within a noise variance of
