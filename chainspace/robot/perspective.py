@@ -875,15 +875,16 @@ def _end_moves(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.nda
     if lead["prior"] is None or F < 6:
         return []
     size = min(max(int(round(WEAK_WINDOW_S * fps)), 5), F // 2)
-    moved_joints = np.flatnonzero(lead["start"]["free_prior"].any(0) & ~robot.prismatic_v)
+    free = lead["start"]["free_prior"]
     ramp = np.arange(1, size + 1) / size
     moves = []
     for a, b, taper in ((0, size, ramp[::-1]), (F - size, F, ramp)):
-        for k in moved_joints:
+        for k in np.flatnonzero(free.any(0) & ~robot.prismatic_v):
             for sign in (1.0, -1.0):
                 dv = np.zeros((F, robot.nv))
                 dv[a:b, k] = sign * np.radians(SHAKE_FAR_DEG) * taper
-                moves.append(((a, b), robot.integrate(q, dv, clip=True)))
+                # (a held direction stays: the first joint seen relative to frame 0 is held at rest there)
+                moves.append(((a, b), robot.integrate(q, dv * free, clip=True)))
     brief = map_tasks(robot, lambda m: _smoothed_refit(robot, lead, m[1], tracks, w, 20, 1e-6, window=m[0]), moves)
     kept: list[dict] = []
     for r in sorted(brief, key=lambda r: r["objective"]):
