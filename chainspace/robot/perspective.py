@@ -855,9 +855,10 @@ END_REFITS = 2
 
 def _end_moves(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.ndarray, fps: float) -> list[dict]:
     """Other minima of the smoothed objective that leave the winner ``lead``'s path towards an end of the
-    sequence: each revolute joint that the fit moves, its path shifted by SHAKE_FAR_DEG either way, ramped
-    from nothing at the start of the first or last window (:data:`WEAK_WINDOW_S` seconds, at most half the
-    sequence) to the full shift at the sequence's end, each refitted smoothed with the camera briefly (20
+    sequence: each revolute joint that the fit moves, its path shifted by SHAKE_FAR_DEG either way over the
+    first or last window (:data:`WEAK_WINDOW_S` seconds, at most half the sequence), ramped from nothing at the
+    window's inner edge to the full shift at the sequence's first or last frame (the directions the fit holds
+    left as they are), each refitted smoothed with the camera briefly (20
     iterations); the :data:`END_REFITS` distinct ones of lowest objective then refitted in full. Returns fit
     dicts as :meth:`PerspectiveRefinement.finish` makes them, each with ``window`` (the frames moved).
 
