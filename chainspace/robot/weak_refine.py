@@ -352,7 +352,9 @@ class WeakRefinement:
         starts = [dict(r["c"], q=q_n, pos=self.robot.positions(q_n),
                        camera0=_camera_view(self.robot.positions(q_n), self.tracks, self.w2, False))
                   for r in results for q_n in _near_twins(self.robot, r["out"][0], r["free"])]
-        alts = self.refined(starts, results)
+        # (one seen from the side the user ruled out is set aside: refined after the reflections, it would not
+        # be reflected, and the Kinova from below, seed 81, ended on such a twin, joints 2-3 155 degrees off)
+        alts = [r for r in self.refined(starts, results) if not self.seen_from_wrong_side(r)]
         return self.order(results + alts) if alts else (results, tied)
 
     def _turned_about_base_line(self, results: list[dict], tied: bool) -> tuple[list[dict], bool]:
