@@ -887,14 +887,20 @@ def _end_moves(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.nda
                 # (a held direction stays: the first joint seen relative to frame 0 is held at rest there)
                 moves.append(((a, b), robot.integrate(q, dv * free, clip=True)))
     brief = map_tasks(robot, lambda m: _smoothed_refit(robot, lead, m[1], tracks, w, 20, 1e-6, window=m[0]), moves)
+    return map_tasks(robot, lambda r: _smoothed_refit(robot, lead, r["q"], tracks, w, 100, 1e-10, window=r["window"]),
+                     _lowest_distinct(robot, brief, q, END_REFITS))
+
+
+def _lowest_distinct(robot: RobotKinematics, fits: list[dict], q: np.ndarray, n: int) -> list[dict]:
+    """The ``n`` fits of lowest objective that are other motions than q (F, nq) and than each other
+    (:func:`chainspace.robot.candidates._same_motion`): the brief refits worth refitting in full."""
     kept: list[dict] = []
-    for r in sorted(brief, key=lambda r: r["objective"]):
-        if len(kept) == END_REFITS:
+    for r in sorted(fits, key=lambda r: r["objective"]):
+        if len(kept) == n:
             break
         if not _same_motion(robot, r["q"], q) and not any(_same_motion(robot, r["q"], k["q"]) for k in kept):
             kept.append(r)
-    return map_tasks(robot, lambda r: _smoothed_refit(robot, lead, r["q"], tracks, w, 100, 1e-10,
-                                                      window=r["window"]), kept)
+    return kept
 
 
 def _smoothed_refit(robot: RobotKinematics, lead: dict, q0: np.ndarray, tracks: np.ndarray, w: np.ndarray,
@@ -949,19 +955,14 @@ def _loose_turns(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.n
     steps = np.radians(TURN_STEP_DEG) * np.arange(1, int(round(360.0 / TURN_STEP_DEG)))
     grids = np.stack(np.meshgrid(*[np.r_[0.0, steps]] * len(loose), indexing="ij"), -1).reshape(-1, len(loose))[1:]
 
+    names = [robot.joint_names[v] for v in loose]
+
     def turned(turn):
         dv = np.zeros((len(q), robot.nv))
         dv[:, loose] = turn
-        return _smoothed_refit(robot, lead, robot.integrate(q, dv, clip=True), tracks, w, 20, 1e-6), turn
+        return _smoothed_refit(robot, lead, robot.integrate(q, dv, clip=True), tracks, w, 20, 1e-6,
+                               turn=dict(zip(names, np.degrees(turn).round(1).tolist())))
 
     brief = map_tasks(robot, turned, grids)
-    kept: list[tuple] = []
-    for r, turn in sorted(brief, key=lambda b: b[0]["objective"]):
-        if len(kept) == TURN_REFITS:
-            break
-        if not any(_same_motion(robot, r["q"], k[0]["q"]) for k in kept) and not _same_motion(robot, r["q"], q):
-            kept.append((r, turn))
-    names = [robot.joint_names[v] for v in loose]
-    return map_tasks(robot, lambda k: _smoothed_refit(robot, lead, k[0]["q"], tracks, w, 100, 1e-10,
-                                                      turn=dict(zip(names, np.degrees(k[1]).round(1).tolist()))),
-                     kept)
+    return map_tasks(robot, lambda r: _smoothed_refit(robot, lead, r["q"], tracks, w, 100, 1e-10, turn=r["turn"]),
+                     _lowest_distinct(robot, brief, q, TURN_REFITS))

@@ -234,7 +234,6 @@ def search_cameras(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, fr
     return ranked
 
 
-
 def pinhole_start(robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, free: np.ndarray,
                   gauge: np.ndarray, K: np.ndarray,
                   skip: Callable[[_PinholeView, np.ndarray, np.ndarray], bool] | None = None,

@@ -349,9 +349,10 @@ class WeakRefinement:
         the winner does (561.8 px^2) with joints 2 and 3 within 0.4 degrees: a tie no candidate showed."""
         from .uncertainty import _near_twins
 
-        starts = [dict(r["c"], q=q_n, pos=self.robot.positions(q_n),
-                       camera0=_camera_view(self.robot.positions(q_n), self.tracks, self.w2, False))
-                  for r in results for q_n in _near_twins(self.robot, r["out"][0], r["free"])]
+        twins = [(r, q_n, self.robot.positions(q_n)) for r in results
+                 for q_n in _near_twins(self.robot, r["out"][0], r["free"])]
+        starts = [dict(r["c"], q=q_n, pos=pos, camera0=_camera_view(pos, self.tracks, self.w2, False))
+                  for r, q_n, pos in twins]
         # (one seen from the side the user ruled out is set aside: refined after the reflections, it would not
         # be reflected, and the Kinova from below, seed 81, ended on such a twin, joints 2-3 155 degrees off)
         alts = [r for r in self.refined(starts, results) if not self.seen_from_wrong_side(r)]
