@@ -877,10 +877,11 @@ def _end_moves(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.nda
         return []
     size = min(max(int(round(WEAK_WINDOW_S * fps)), 5), F // 2)
     free = lead["start"]["free_prior"]
+    moved_joints = np.flatnonzero(free.any(0) & ~robot.prismatic_v)
     ramp = np.arange(1, size + 1) / size
     moves = []
     for a, b, taper in ((0, size, ramp[::-1]), (F - size, F, ramp)):
-        for k in np.flatnonzero(free.any(0) & ~robot.prismatic_v):
+        for k in moved_joints:
             for sign in (1.0, -1.0):
                 dv = np.zeros((F, robot.nv))
                 dv[a:b, k] = sign * np.radians(SHAKE_FAR_DEG) * taper
