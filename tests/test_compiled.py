@@ -140,7 +140,7 @@ def test_rows_go_on_across_calls_as_in_one(monkeypatch, kind):
 
 
 @pytest.mark.parametrize("name,smooth", [("kinova", False), ("ur10", False), ("ur10", True), ("panda", True),
-                                         ("kinova", True)])
+                                         ("kinova", True), ("ur10", "jerk"), ("kinova", "jerk")])
 @pytest.mark.parametrize("kind,delta,free_camera", [("3d", None, "all"), ("weak", None, "all"),
                                                     ("weak", 2.0, "rotation"), ("pinhole", 2.0, "all"),
                                                     ("pinhole", None, "focal"), ("pinhole", 2.0, "centre")])
@@ -148,10 +148,10 @@ def test_a_shared_camera_moves_with_the_joints_as_in_numpy(name, smooth, kind, d
     # lm_shared: every frame's joints and one camera free (the Schur complement's steps), from a camera
     # turned 3 degrees and moved off the truth; the numpy solver's costs, iterations and camera. Smooth:
     # with the motion prior (_smooth_lm: a banded step), some joints held in some frames and some joints
-    # beyond their last sighting (the prior's speed term)
+    # beyond their last sighting (the prior's speed term); "jerk": the jerk prior (a frame coupled to three on)
     from dataclasses import replace
 
-    from chainspace.robot.solver import _motion_prior, _prior_band, _smooth_lm
+    from chainspace.robot.solver import _jerk_prior, _motion_prior, _prior_band, _smooth_lm
     from chainspace.robot.views import _rotvec
 
     robot = _robot(name)
@@ -169,7 +169,7 @@ def test_a_shared_camera_moves_with_the_joints_as_in_numpy(name, smooth, kind, d
     free, unseen = np.ones((n, robot.nv), bool), np.zeros((n, robot.nv), bool)
     free[:10, 1] = False
     unseen[:5, 0] = unseen[-5:, 2] = True
-    prior = _motion_prior(unseen, 50.0, 10.0)
+    prior = _jerk_prior(unseen, 50.0, 10.0, 5.0) if smooth == "jerk" else _motion_prior(unseen, 50.0, 10.0)
     q0 = robot.clip(q0)  # a start inside the limits, as every fit's: a held joint stays where it is
     assert _prior_band(prior, n, robot.nv) is not None  # the prior as the compiled solver takes it
     out = []

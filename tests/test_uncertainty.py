@@ -10,7 +10,7 @@ from chainspace.io.urdf import from_urdf
 from chainspace.robot.kinematics import RobotKinematics
 from chainspace.robot.observability import _unseen
 from chainspace.robot.selection import view_side_valid
-from chainspace.robot.solver import _motion_prior, _normal_equations
+from chainspace.robot.solver import _jerk_prior, _motion_prior, _normal_equations
 from chainspace.robot.uncertainty import (_block_tridiagonal_inverse_diagonal, ambiguous_joints, joint_covariance,
                                          joint_std)
 from chainspace.robot.views import _camera_view
@@ -38,36 +38,39 @@ def test_block_tridiagonal_recursion_gives_the_diagonal_blocks_of_the_inverse():
     assert np.allclose(_block_tridiagonal_inverse_diagonal(A, B), want, atol=1e-12)
 
 
-def _std_problem(chain, robot, n_frames, seed):
+def _std_problem(chain, robot, n_frames, seed, jerk=False):
     """A noisy static-camera trial with its camera, a held direction (the first joint in frame 0, as
-    for a relative joint) and a motion prior: the inputs of joint_std and joint_covariance."""
+    for a relative joint) and a motion prior (``jerk``: the jerk prior): the inputs of joint_std and
+    joint_covariance."""
     trial = synthesize(chain, n_frames=n_frames, noise_px=1.0, seed=seed, camera="static")
     w = np.ones(trial.tracks.shape[:2])
     view = _camera_view(trial.positions, trial.tracks, w, False)
     free = np.ones((n_frames, robot.nv), bool)
     free[0, 0] = False
-    prior = _motion_prior(_unseen(robot, w), 50.0, np.inf)
+    prior = _jerk_prior(_unseen(robot, w), 500.0, np.inf) if jerk else _motion_prior(_unseen(robot, w), 50.0, np.inf)
     return trial, w, view, free, prior
 
 
-def test_joint_std_is_the_dense_gauss_newton_covariance_with_camera_and_prior(arm):
+@pytest.mark.parametrize("jerk,n_frames", [(False, 7), (True, 7), (True, 8)])
+def test_joint_std_is_the_dense_gauss_newton_covariance_with_camera_and_prior(arm, jerk, n_frames):
+    # (the jerk prior couples three frames on: blocks of three frames, the last padded where 3 does not divide F)
     chain, robot = arm
-    trial, w, view, free, prior = _std_problem(chain, robot, 7, 2)
+    trial, w, view, free, prior = _std_problem(chain, robot, n_frames, 2, jerk)
     std, sigma = joint_std(robot, trial.q, trial.tracks, w, view, free, None, prior)
     # the same matrix, assembled densely and inverted
     pos, jac = robot.jacobians(trial.q)
     pred, y = view.apply(pos)
     Hqq, Hqc, _, Hcc, _ = _normal_equations(view, jac, y, pred - trial.tracks, w, free, np.ones(view.n_params, bool))
-    N, nc = 7 * robot.nv, view.n_params
+    N, nc = n_frames * robot.nv, view.n_params
     fr = free.reshape(-1).astype(float)
     H = np.zeros((N + nc, N + nc))
-    for f in range(7):
+    for f in range(n_frames):
         H[f * robot.nv:(f + 1) * robot.nv, f * robot.nv:(f + 1) * robot.nv] = Hqq[f]
     H[:N, :N] += fr[:, None] * prior.toarray() * fr[None] + np.diag(1 - fr)
     H[:N, N:] = Hqc.reshape(N, nc)
     H[N:, :N] = H[:N, N:].T
     H[N:, N:] = Hcc[0]
-    var = np.diag(np.linalg.inv(H))[:N].reshape(7, robot.nv)
+    var = np.diag(np.linalg.inv(H))[:N].reshape(n_frames, robot.nv)
     assert np.isnan(std[0, 0]) and np.isfinite(std[free]).all()
     assert np.allclose((std / sigma)[free], np.sqrt(var[free]), rtol=1e-4)
 
@@ -314,6 +317,25 @@ def test_the_sampled_motion_prior_charges_an_acceleration_per_second_as_the_full
     qs = q[sub].reshape(-1)
     assert qs @ (sampled @ qs) == pytest.approx(mu * (len(sub) - 2) * nv * a ** 2)  # per sample, as per frame
     assert _sampled_prior(None, F, nv, step, len(sub)) is None
+
+
+def test_the_sampled_jerk_prior_charges_a_jerk_per_second_as_the_full_one():
+    """The same for the jerk prior: a third difference over k frames is k^3 times one over one frame, so
+    the sampled prior is mu / k^6; read back from the full prior's matrix."""
+    from chainspace.robot.solver import prior_frames
+    from chainspace.robot.uncertainty import _sampled_prior
+
+    F, nv, mu, step, a = 90, 2, 7.0, 3, 0.001
+    t = np.arange(F, dtype=float)
+    q = np.stack([a * t ** 3 / 6, -a * t ** 3 / 6], 1)  # a constant jerk (per frame^3)
+    full = _jerk_prior(np.zeros((F, nv), bool), mu, np.inf)
+    qf = q.reshape(-1)
+    assert prior_frames(full, nv) == 3 and qf @ (full @ qf) == pytest.approx(mu * (F - 3) * nv * a ** 2)
+    sub = np.arange(0, F, step)
+    sampled = _sampled_prior(full, F, nv, step, len(sub))
+    qs = q[sub].reshape(-1)
+    assert prior_frames(sampled, nv) == 3
+    assert qs @ (sampled @ qs) == pytest.approx(mu * (len(sub) - 3) * nv * a ** 2)  # per sample, as per frame
 
 
 def test_a_long_sequence_is_shaken_on_sampled_frames_and_its_ties_refitted_on_every_frame(monkeypatch):

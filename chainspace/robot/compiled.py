@@ -643,7 +643,7 @@ def _angles(q, q_of_v, pair, out):
 @_njit
 def _prior_terms(prior, q, free, gq):
     """The motion prior q' P q of :func:`chainspace.robot.solver._smooth_lm` on the angles q (F, nv)
-    (:func:`_angles`; P in ``prior`` (F, 3, nv): P[f, s, a] couples joint a at frame f to itself at frame
+    (:func:`_angles`; P in ``prior`` (F, S + 1, nv): P[f, s, a] couples joint a at frame f to itself at frame
     f + s, the only entries :func:`chainspace.robot.solver._motion_prior` makes); with gq (F, nv) given,
     its gradient half P q is added there and the held directions' gradient zeroed. Returns q' P q."""
     F, nv = q.shape
@@ -651,7 +651,7 @@ def _prior_terms(prior, q, free, gq):
     for r in range(F):
         for a in range(nv):
             pq = g = prior[r, 0, a] * q[r, a]  # its row of P q: the entries ahead count twice in q' P q
-            for s in (1, 2):
+            for s in range(1, prior.shape[1]):
                 if r + s < F:
                     ahead = prior[r, s, a] * q[r + s, a]
                     pq += 2.0 * ahead
@@ -703,8 +703,8 @@ def _band_solve(L, B):
 @_njit
 def _banded_step(Hqq, Hqc, gq, Hcc, gc, prior, lam, free, free_view, dq, dc, A, K):
     """:func:`_schur_step` with the motion prior: the joint angles' block is every frame's Hqq plus the
-    prior (``prior`` as :func:`_prior_terms` takes it), banded (a joint couples to itself two frames on),
-    factored by a banded Cholesky in A (F nv, 2 nv + 1): A[i, k] holds entry (i, i - k). The damping is
+    prior (``prior`` as :func:`_prior_terms` takes it), banded (a joint couples to itself S frames on),
+    factored by a banded Cholesky in A (F nv, S nv + 1): A[i, k] holds entry (i, i - k). The damping is
     ``_smooth_lm``'s: lam times each diagonal entry plus a billionth of their mean, held joint directions
     pinned by 1e12, held camera directions by 1. K (F, nv, nc + 1): scratch, as :func:`_schur_step`'s.
     Same signs."""
@@ -725,7 +725,7 @@ def _banded_step(Hqq, Hqc, gq, Hcc, gc, prior, lam, free, free_view, dq, dc, A, 
                 A[i, a - b] = Hqq[r, a, b]
             d = Hqq[r, a, a] + prior[r, 0, a]
             A[i, 0] = d + lam * (d + floor) + (0.0 if free[r, a] else 1e12)
-            for s in (1, 2):
+            for s in range(1, prior.shape[1]):
                 if r >= s:
                     A[i, s * nv] = prior[r - s, s, a]
             for c in range(nc):
@@ -763,7 +763,7 @@ def lm_shared(q, tz, w, free, free_view, delta, tol, max_iter, R, t, sf, cxy, pi
     (its steps, damping and stopping rules): q (F, nq) and the camera R (3, 3), t (3,; weak: t[:D] the
     translation), cxy (2,) in place; ``sf`` the weak camera's scale or the pinhole's focal. tz (F, J, D)
     targets, w (F, J) weights, free (F, nv), free_view (nc,), delta < 0: squares. With a motion prior
-    (``prior`` (F, 3, nv), :func:`_prior_terms`; none: (0, 3, nv)) it is
+    (``prior`` (F, S + 1, nv), :func:`_prior_terms`; none: (0, S + 1, nv)) it is
     :func:`chainspace.robot.solver._smooth_lm` instead (its objective, damping and banded step). Writes the
     residual norms rn_out (F, J) and points pos_out (F, J, 3); returns (sf, iterations, converged)."""
     limited, lower, upper, q_of_v, pair = model[15], model[16], model[17], model[19], model[20]
@@ -781,7 +781,7 @@ def lm_shared(q, tz, w, free, free_view, delta, tol, max_iter, R, t, sf, cxy, pi
     M, T, q_t = np.zeros((3, 3)), np.zeros(3), np.empty((F, nq))
     R_t, t_t, c_t = np.empty((3, 3)), np.empty(3), np.empty(2)
     smooth = prior.shape[0] > 0
-    A = np.empty((F * nv if smooth else 0, 2 * nv + 1))
+    A = np.empty((F * nv if smooth else 0, (prior.shape[1] - 1) * nv + 1))
     _view_arrays(R, t, sf, pinhole, D, M, T)
     _evaluate_all(q, tz, w, M, T, pinhole, sf, cxy, delta, model, Rp, pp, pos, res, cost)
     ang = np.empty((F if smooth else 0, nv))

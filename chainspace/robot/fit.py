@@ -331,6 +331,7 @@ def fit_joint_angles(
     view_from: str | None = "above",
     fps: float = 30.0,
     accel_std: float | None = 3.0,
+    jerk_std: float | None = 10.0,
     speed_decay_s: float | None = None,
     intrinsics: Any = None,
     image_size: tuple[float, float] | None = None,
@@ -374,6 +375,13 @@ def fit_joint_angles(
         much as pixel noise of the size of the residuals. Robots move smoothly; the prior averages the
         noise over neighbouring frames (the wrist joints, seen through short links, gain most). None:
         every frame on its own.
+    jerk_std
+        The prior on joint jerks (rad/s^3, RMS) that the answer is finished under: the fit searches for
+        the motion, and for the others that fit as well, under the acceleration prior, then finishes each
+        of them under ``sum |q[f+2] - 3 q[f+1] + 3 q[f] - q[f-1]|^2``, weighted alike, which lets a joint
+        keep its acceleration where the tracks say little (near a singularity, at the ends of a sequence)
+        instead of pulling it towards rest; the standard deviations and ties are taken under it. None: the
+        answer stays under the acceleration prior. Used with ``accel_std``.
     speed_decay_s
         Before the first and after the last frame in which a point it moves is seen, a joint's speed
         decays with this time constant (s), so that the joint comes to rest; None (default): it
@@ -425,6 +433,8 @@ def fit_joint_angles(
         raise DescriptionError(f"view_from must be 'above', 'below' or None, not {view_from!r}")
     if accel_std is not None and not _positive(accel_std):
         raise DescriptionError(f"accel_std must be a positive number of rad/s^2 or None, not {accel_std!r}")
+    if jerk_std is not None and not _positive(jerk_std):
+        raise DescriptionError(f"jerk_std must be a positive number of rad/s^3 or None, not {jerk_std!r}")
     if speed_decay_s is not None and not _positive(speed_decay_s):
         raise DescriptionError(f"speed_decay_s must be a positive number of seconds or None, not {speed_decay_s!r}")
     if not _positive(fps):
@@ -448,7 +458,7 @@ def fit_joint_angles(
     if intrinsics is not None or image_size is not None or perspective:
         return _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter,
                                 tol, loss_scale_px, mirror, view_from, fps, accel_std, speed_decay_s, intrinsics,
-                                image_size, search_ties)
+                                image_size, search_ties, jerk_std=jerk_std)
     poses, chain, urdf, tracks, confidence = _inputs(rec_or_poses, urdf, chain, tracks, confidence)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -498,7 +508,7 @@ def fit_joint_angles(
         results, mirror_tied = weak.search(candidates)
         timings["refine_candidates"] = time.perf_counter() - t1
         r, results, mirror_tied, prior, sigma, scored = weak.choose(results, mirror_tied, accel_std, fps,
-                                                                    speed_decay_s)
+                                                                    speed_decay_s, jerk_std)
         smoothed = prior is not None
         if smoothed:
             timings["smoothed_choice"] = time.perf_counter() - t1 - timings["refine_candidates"]
@@ -570,7 +580,8 @@ def fit_joint_angles(
 
 def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter, tol,
                      loss_scale_px, mirror, view_from, fps, accel_std, speed_decay_s, intrinsics,
-                     image_size, search_ties=True, start_stride: int | None = None) -> JointFit:
+                     image_size, search_ties=True, start_stride: int | None = None,
+                     jerk_std: float | None = 10.0) -> JointFit:
     """fit_joint_angles with a pinhole camera (module docstring, "Perspective"); its weak start on every
     ``start_stride``-th frame (None: :func:`_start_stride`)."""
     from ..cameras.pinhole import PinholeCamera, as_camera
@@ -615,7 +626,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
                                    loss_scale_px=loss_scale_px, mirror=mirror, view_from=view_from, fps=fps / stride,
                                    # only starts: perspective chooses among the candidates, so the weak fit's
                                    # smoothed choice among them is skipped (the perspective fit is smoothed)
-                                   accel_std=accel_std if reported else None,
+                                   accel_std=accel_std if reported else None, jerk_std=jerk_std,
                                    speed_decay_s=speed_decay_s, search_ties=search_ties, _starts=found,
                                    _assess=reported)
         return fit, found
@@ -645,7 +656,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         track_jitter(tracks_u, w2))[0] <= CAMERA_MISFIT_RATIO
     best = refine_perspective(robot, distinct, tracks_u, w2, None if cam is None else cam.K, image_size, accel_std,
                               fps, speed_decay_s, unseen, max_iter, tol, weak_sse,
-                              accel_std is not None, search_ties, weak_fits=bool(weak_fits))
+                              accel_std is not None, search_ties, weak_fits=bool(weak_fits), jerk_std=jerk_std)
     timings = dict(weak.timings, perspective=time.perf_counter() - t1)
     focal = best.get("focal")
     focal_std = best.get("focal_std")
@@ -704,7 +715,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         sparse_s = time.perf_counter() - t0
         again = _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter,
                                  tol, loss_scale_px, mirror, view_from, fps, accel_std, speed_decay_s, intrinsics,
-                                 image_size, search_ties, start_stride=1)
+                                 image_size, search_ties, start_stride=1, jerk_std=jerk_std)
         again.timings.update(sparse_start=sparse_s, total=again.timings["total"] + sparse_s)
         return again
     if not converged.all():

@@ -33,7 +33,8 @@ from .kinematics import RobotKinematics, _rest_distance, _wrapped
 from .observability import _hold_with_prior, _structural
 from .compiled import map_tasks
 from .solver import _huber, _motion_prior, _noise_sigma, _normal_equations, _sequence_lm, _smooth_lm, \
-    _smoothed_objective
+    _smoothed_objective, jerk_prior
+from .selection import under_jerk_prior
 from .views import _PinholeView, _camera_view, _pinhole_from_weak, turn_between_deg
 from .candidates import TIE_VARIANCES, _motion_distance, _pinhole_twin, _same_motion, _static_line_starts, \
     _turned_twins, _view_moved_with, _viterbi_reanchored
@@ -289,7 +290,8 @@ def _camera_covariance(robot: RobotKinematics, q: np.ndarray, view: _PinholeView
 def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.ndarray, w: np.ndarray,
                        K: np.ndarray | None, image_size, accel_std: float | None, fps: float,
                        speed_decay_s: float | None, unseen: np.ndarray, max_iter: int, tol: float,
-                       weak_sse: float, smooth: bool, search_ties: bool = False, weak_fits: bool = False) -> dict:
+                       weak_sse: float, smooth: bool, search_ties: bool = False, weak_fits: bool = False,
+                       jerk_std: float | None = None) -> dict:
     """Fit the pinhole camera and joint angles from the weak-perspective starts (every one through the
     camera stage; the first, the weak fit's winner, and the others of lowest cost there refined in full,
     :data:`MAX_STARTS` in all), and from the best graft of the others onto the winner
@@ -307,10 +309,10 @@ def refine_perspective(robot: RobotKinematics, starts: list[dict], tracks: np.nd
     the principal point is fitted as well, from the centre of the tracks' extent. Returns a dict with the winner's
     q, view, rn, pos, objective, sse, the other starts' objectives, the focal and its standard
     deviation (estimated focal only), and ``measured`` (False: perspective not measurable; see
-    ``reason``).
+    ``reason``). ``jerk_std``: the fits finished under the jerk prior (:meth:`_under_jerk_prior`), or None.
     """
     return PerspectiveRefinement(robot, tracks, w, K, image_size, accel_std, fps, speed_decay_s, unseen, max_iter,
-                                 tol, smooth).run(starts, weak_sse, search_ties, weak_fits)
+                                 tol, smooth, jerk_std).run(starts, weak_sse, search_ties, weak_fits)
 
 
 class PerspectiveRefinement:
@@ -320,9 +322,10 @@ class PerspectiveRefinement:
 
     def __init__(self, robot: RobotKinematics, tracks: np.ndarray, w: np.ndarray, K: np.ndarray | None, image_size,
                  accel_std: float | None, fps: float, speed_decay_s: float | None, unseen: np.ndarray,
-                 max_iter: int, tol: float, smooth: bool):
+                 max_iter: int, tol: float, smooth: bool, jerk_std: float | None = None):
         self.robot, self.w, self.unseen, self.max_iter, self.tol = robot, w, unseen, max_iter, tol
         self.accel_std, self.fps, self.speed_decay_s, self.smooth = accel_std, fps, speed_decay_s, smooth
+        self.jerk_std = jerk_std
         self.K = None if K is None else np.asarray(K, float)
         self.fit_focal = K is None
         self.fit_centre = self.fit_focal and image_size is None
@@ -508,10 +511,29 @@ class PerspectiveRefinement:
         best["aspect"] = self.aspect
         if self.fit_focal:
             best.update(_measured_perspective(robot, best, self.tr, w, weak_sse, self.n_obs, self.fit_centre))
+        if best["measured"] and best["prior"] is not None and self.jerk_std is not None and len(self.tr) > 3:
+            self._under_jerk_prior(best, fits)
         if best["measured"]:  # else the weak fit is reported, with its own
             stage("robot fit, perspective: the joint angles' standard deviations and alternatives")
             best["trust"] = _trust(robot, best, fits, self.tr, w, search_ties)
         return best
+
+    def _under_jerk_prior(self, best: dict, fits: list[dict]) -> None:
+        """Every fit finished under the jerk prior (:func:`chainspace.robot.selection.under_jerk_prior`),
+        in place: its motion, camera, residuals and objective; the winner's focal (and principal point)
+        where they are estimated."""
+        w = self.w
+        prior = jerk_prior(self.unseen, max(_noise_sigma(best["rn"], w), 1e-3), self.jerk_std, self.fps,
+                           self.speed_decay_s)
+        starts = [(r["q"], r["view"], r["start"]["free_prior"], r["delta"]) for r in fits]
+        finished = under_jerk_prior(self.robot, starts, self.tr, w, prior, self.max_iter, self.tol)
+        for r, (objective, o) in zip(fits, finished):
+            r.update(q=o[0], view=o[1], rn=o[2], pos=o[3], conv=o[4], n_iter=r["n_iter"] + o[5], objective=objective,
+                     sse=float((w * o[2] ** 2).sum()), prior=prior)
+        if "focal" in best:  # the finished camera's (its deviation, measured just before, stands)
+            best["focal"] = float(best["view"].f)
+            if "centre" in best:
+                best["centre"] = best["view"].c.copy()
 
     def _from_starts(self, starts: list[dict], weak_sse: float, weak_fits: bool) -> dict | None:
         """Every start (as :func:`_pinhole_gauge` makes them; and each turned about the first joint's axis:

@@ -1,5 +1,6 @@
 """Levenberg-Marquardt over a sequence: per-frame joint angles and a shared (or per-frame) view,
-a robust (Huber) loss, and the acceleration prior of the smoothed fit.
+a robust (Huber) loss, and the motion priors of the smoothed fit (on joint accelerations for the search,
+on joint jerks for the answer).
 """
 
 from __future__ import annotations
@@ -131,6 +132,57 @@ def _motion_prior(unseen: np.ndarray, mu: float, decay_frames: float):
     return (sp.kron(mu * (L.T @ L), sp.eye(nv)) + D1.T @ speed @ D1).tocsr()
 
 
+# the jerk prior's frames of coupling (third differences); the acceleration prior couples two
+MAX_PRIOR_FRAMES = 3
+# beyond a joint's first or last sighting, under the jerk prior, its acceleration dies away with this time
+# constant (s): the jerk prior alone would carry the last acceleration on for ever (a parabola costs no jerk)
+ACCEL_DECAY_S = 0.25
+
+
+def _differences(F: int, order: int):
+    """(F - order, F) sparse matrix of the order-th differences of a sequence of F values."""
+    import scipy.sparse as sp
+    from math import comb
+
+    return sp.diags([(-1.0) ** (order - k) * comb(order, k) * np.ones(F - order) for k in range(order + 1)],
+                    list(range(order + 1)), shape=(F - order, F))
+
+
+def _jerk_prior(unseen: np.ndarray, mu: float, decay_frames: float, accel_decay_frames: float = np.inf):
+    """(F nv, F nv) sparse matrix M of the prior on joint jerks, q' M q' (q' the joint angles frame after
+    frame): mu |joint jerks|^2 (third differences, per frame^3), plus, where a direction lies beyond its
+    first or last sighting (``unseen`` (F, nv), :func:`_beyond_sightings`), mu (1 / ta^2 + 1 / tv^2)
+    |joint accelerations|^2 + mu / (ta tv)^2 |joint speeds|^2 (ta = ``accel_decay_frames``, tv =
+    ``decay_frames``; inf: that term off): there the speed is a exp(-t / ta) + b exp(-t / tv) + c (its
+    acceleration dies away over ta frames, the speed over tv), with no overshoot. The jerk prior alone
+    would carry a joint on at its last acceleration for ever (a parabola costs no jerk)."""
+    import scipy.sparse as sp
+
+    F, nv = unseen.shape
+    if F <= 3:  # no third difference: nothing to penalise
+        return sp.csr_matrix((F * nv, F * nv))
+    beyond = _beyond_sightings(unseen)  # (F - 1, nv) steps
+    D1, D2 = sp.kron(_differences(F, 1), sp.eye(nv)), sp.kron(_differences(F, 2), sp.eye(nv))
+    speed = sp.diags(beyond.reshape(-1) * (mu / (accel_decay_frames * decay_frames) ** 2))
+    accel = sp.diags((beyond[1:] & beyond[:-1]).reshape(-1) * (mu / accel_decay_frames ** 2 + mu / decay_frames ** 2))
+    L = _differences(F, 3)
+    return (sp.kron(mu * (L.T @ L), sp.eye(nv)) + D1.T @ speed @ D1 + D2.T @ accel @ D2).tocsr()
+
+
+def jerk_prior(unseen: np.ndarray, sigma: float, jerk_std: float, fps: float, speed_decay_s: float | None):
+    """The jerk prior of a fit (:func:`_jerk_prior`): joint jerks of ``jerk_std`` (rad/s^3, RMS) cost as
+    much as pixel noise of ``sigma`` (px) at ``fps`` frames a second; beyond a joint's sightings its
+    acceleration dies away over :data:`ACCEL_DECAY_S` and its speed over ``speed_decay_s`` (None: never).
+
+    Why a second prior: the acceleration prior (:func:`_motion_prior`) pulls a joint that the tracks fix
+    poorly (near a singularity, at the ends of a sequence) towards rest. It is the stiffer model for the
+    search for the right motion, this the better one for its final values
+    (:func:`chainspace.robot.selection.under_jerk_prior`)."""
+    mu = sigma ** 2 / (float(jerk_std) / float(fps) ** 3) ** 2
+    decay_frames = np.inf if speed_decay_s is None else speed_decay_s * float(fps)
+    return _jerk_prior(unseen, mu, decay_frames, ACCEL_DECAY_S * float(fps))
+
+
 def _smoothed_objective(prior, q: np.ndarray, rn: np.ndarray, w: np.ndarray, delta: float | None) -> float:
     """What :func:`_smooth_lm` minimises: robust residuals (norms rn (F, J), weights w, Huber threshold
     delta) plus the motion prior q' prior q' (q: the angles (F, nv), :meth:`RobotKinematics.angles`)."""
@@ -138,12 +190,21 @@ def _smoothed_objective(prior, q: np.ndarray, rn: np.ndarray, w: np.ndarray, del
     return float((w * _huber(rn, delta)[0]).sum()) + float(qf @ (prior @ qf))
 
 
+def prior_frames(prior, nv: int) -> int:
+    """How many frames on the motion prior (a sparse (F nv, F nv) matrix, :func:`_motion_prior` or
+    :func:`jerk_prior`) couples a joint to itself: 2 for the acceleration prior, 3 for the jerk prior."""
+    F = prior.shape[0] // max(nv, 1)
+    return max([s for s in range(1, min(MAX_PRIOR_FRAMES, F - 1) + 1) if prior.diagonal(s * nv).any()], default=1)
+
+
 def _prior_band(prior, F: int, nv: int) -> np.ndarray | None:
-    """The motion prior (:func:`_motion_prior`) as the compiled solver takes it: P (F, 3, nv), P[f, s, a]
-    the entry that couples joint a at frame f to itself at frame f + s; None if it has other entries."""
-    P = np.zeros((F, 3, nv))
+    """The motion prior (:func:`_motion_prior`, :func:`jerk_prior`) as the compiled solver takes it:
+    P (F, S + 1, nv) (S = :func:`prior_frames`), P[f, s, a] the entry that couples joint a at frame f to
+    itself at frame f + s; None if it has other entries."""
+    S = prior_frames(prior, nv)
+    P = np.zeros((F, S + 1, nv))
     kept = 0
-    for s in range(min(3, F)):
+    for s in range(min(S + 1, F)):
         d = prior.diagonal(s * nv)
         P[:F - s, s] = d.reshape(F - s, nv)
         kept += np.count_nonzero(d) * (2 if s else 1)  # the matrix is symmetric: the lower side counts too
@@ -172,7 +233,7 @@ def _smooth_lm(robot: RobotKinematics, q: np.ndarray, target: np.ndarray, w: np.
     if band is not None:
         return _shared_view_rows(model, q, tz, w, view, free, free_view, max_iter, tol, delta, band)
     N = F * nv
-    u = 3 * nv - 1  # upper bandwidth: frame f couples to f + 2
+    u = (prior_frames(prior, nv) + 1) * nv - 1  # upper bandwidth: frame f couples to f + S
     frozen = (~free).reshape(-1)
     prior_band = np.zeros((u + 1, N))
     for d in range(u + 1):  # upper diagonals of the prior, in the banded layout

@@ -8,10 +8,10 @@ posterior with pixel noise sigma, its Gauss-Newton covariance at the solution is
 
 with q the joint angles of every frame and c the static camera. Only the per-frame diagonal blocks of
 the q part are needed. The camera is eliminated by a Schur complement, and the joint-angle block,
-banded (the acceleration prior couples a frame to the two either side), is block-tridiagonal in
-*pairs* of frames; the diagonal blocks of its inverse follow from one forward and one backward
-recursion (``inv(L_k + R_k - A_k)``, L and R the Schur complements from either end), so the cost is
-linear in the number of frames.
+banded (the acceleration prior couples a frame to the two either side, the jerk prior to the three), is
+block-tridiagonal in blocks of that many frames; the diagonal blocks of its inverse follow from one
+forward and one backward recursion (``inv(L_k + R_k - A_k)``, L and R the Schur complements from either
+end), so the cost is linear in the number of frames.
 
 sigma is measured from the fit's own residuals: the robust (median) estimate of
 :func:`chainspace.robot.solver._noise_sigma`, corrected for the degrees of freedom the fit used
@@ -40,7 +40,7 @@ from ..metrics import procrustes_align
 from .compiled import map_tasks
 from .kinematics import RobotKinematics, _relative_difference
 from .observability import _point_movers
-from .solver import _huber, _noise_sigma, _normal_equations
+from .solver import _huber, _noise_sigma, _normal_equations, prior_frames
 from .views import similarity_align
 
 
@@ -56,13 +56,13 @@ def _block_tridiagonal_inverse_diagonal(A: np.ndarray, B: np.ndarray) -> np.ndar
     return np.linalg.inv(L + R - A)
 
 
-def _pair_blocks(H, F: int, nv: int) -> tuple[np.ndarray, np.ndarray]:
-    """H (F nv, F nv) sparse, bandwidth two frames, as blocks of two frames each (the last padded with
-    an identity when F is odd): diagonal (n, 2 nv, 2 nv) and super-diagonal (n - 1, 2 nv, 2 nv)."""
+def _frame_blocks(H, F: int, nv: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """H (F nv, F nv) sparse, bandwidth m frames, as blocks of m frames each (the last padded with an
+    identity where m does not divide F): diagonal (n, m nv, m nv) and super-diagonal (n - 1, m nv, m nv)."""
     import scipy.sparse as sp
 
-    b = 2 * nv
-    n = (F + 1) // 2
+    b = m * nv
+    n = (F + m - 1) // m
     pad = n * b - F * nv
     Hp = sp.block_diag([H, sp.eye(pad)]).tocsr() if pad else H.tocsr()
     A = np.stack([Hp[k * b:(k + 1) * b, k * b:(k + 1) * b].toarray() for k in range(n)])
@@ -113,10 +113,10 @@ def joint_std(robot: RobotKinematics, q: np.ndarray, tracks: np.ndarray, w: np.n
         X = lu.solve(Hqc.reshape(F * nv, nc))  # A^-1 H_qc
         S = Hcc[0] - Hqc.reshape(F * nv, nc).T @ X + 1e-12 * np.eye(nc) * np.trace(Hcc[0])
         S_inv = np.linalg.inv(S)
-        Ad, Bd = _pair_blocks(A, F, nv)
-        inv_pairs = _block_tridiagonal_inverse_diagonal(Ad, Bd)
+        m = prior_frames(prior, nv) if prior is not None else 2  # block-tridiagonal in blocks of m frames
+        inv_blocks = _block_tridiagonal_inverse_diagonal(*_frame_blocks(A, F, nv, m))
         # per-frame diagonal blocks of A^-1, then the camera's share: (A^-1 Hqc) S^-1 (A^-1 Hqc)'
-        blocks = np.concatenate([inv_pairs[:, :nv, :nv][:, None], inv_pairs[:, nv:, nv:][:, None]], 1)
+        blocks = np.stack([inv_blocks[:, i * nv:(i + 1) * nv, i * nv:(i + 1) * nv] for i in range(m)], 1)
         blocks = blocks.reshape(-1, nv, nv)[:F]
         Xf = X.reshape(F, nv, nc)
         cov_qq = blocks + Xf @ S_inv @ Xf.transpose(0, 2, 1)
@@ -820,15 +820,20 @@ def _fit_objective(robot: RobotKinematics, qa: np.ndarray, rn: np.ndarray, w: np
 
 
 def _sampled_prior(prior, F: int, nv: int, step: int, n: int):
-    """The acceleration prior of every ``step``-th frame of F (n frames), for the search on them: the same
-    joint accelerations cost the same per second (a second difference over ``step`` frames is step^2
-    times one over one frame: mu / step^4). Read from the prior's matrix (its frame 0 - frame 2 entry
-    is mu alone: nothing else couples frames two apart); its speed term, beyond a joint's sightings, is
-    left out (the search only finds starts: its ties are refitted and scored with the full prior)."""
-    from .solver import _motion_prior
+    """The motion prior of every ``step``-th frame of F (n frames), for the search on them: the same joint
+    accelerations cost the same per second (a second difference over ``step`` frames is step^2 times one
+    over one frame: mu / step^4), or under the jerk prior the same jerks (mu / step^6). Read from the
+    prior's matrix (the acceleration prior's frame 0 - frame 2 entry is mu alone, the jerk prior's frame
+    0 - frame 3 entry -mu: nothing else couples frames that far apart); its terms beyond a joint's
+    sightings are left out (the search only finds starts: its ties are refitted and scored with the full
+    prior)."""
+    from .solver import _jerk_prior, _motion_prior
 
     if prior is None:
         return None
+    if prior_frames(prior, nv) == 3:  # the jerk prior: its frame 0 - frame 3 entry is -mu alone
+        mu = -float(prior[0, 3 * nv])
+        return _jerk_prior(np.zeros((n, nv), bool), mu / step ** 6, np.inf) if n > 3 else None
     mu = float(prior[0, 2 * nv]) if F >= 3 else 0.0
     return _motion_prior(np.zeros((n, nv), bool), mu / step ** 4, np.inf)
 

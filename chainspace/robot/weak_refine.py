@@ -29,8 +29,9 @@ from .candidates import (SYMMETRY_MIRROR, TIE_VARIANCES, _base_keeping_mirror, _
 from .compiled import imap_tasks, map_tasks
 from .kinematics import RobotKinematics, _rest_distance, _roughness
 from .observability import _gauge_directions, _hold, _hold_with_prior, _unseen
-from .selection import _most_probable, _prefer_rest, view_side_valid
-from .solver import _huber, _motion_prior, _noise_sigma, _rms_per_frame, _robust_scale, _sequence_lm
+from .selection import _most_probable, _prefer_rest, under_jerk_prior, view_side_valid
+from .solver import _huber, _motion_prior, _noise_sigma, _rms_per_frame, _robust_scale, _sequence_lm, \
+    jerk_prior
 from .starts import _fit_3d, _initial_camera, _sequential_ik
 from .uncertainty import assess_fit
 from .views import _affine_camera, _align, _camera_view, _looks_down
@@ -381,11 +382,13 @@ class WeakRefinement:
 
     # ---- the choice with the motion prior, and how sure it is
     def choose(self, results: list[dict], tied: bool, accel_std: float | None, fps: float,
-               speed_decay_s: float | None) -> tuple[dict, list[dict], bool, object, float, list]:
+               speed_decay_s: float | None, jerk_std: float | None = None) -> tuple[dict, list[dict], bool, object,
+                                                                                 float, list]:
         """The most probable fit under the motion prior (joint accelerations ~ N(0, accel_std^2) rad/s^2
         against the measured pixel noise), where there is one (a static camera, three frames or more, some
-        noise): (winner, fits best first, whether it ties, the prior or None, the noise sigma px, the
-        scored (objective, fit) pairs)."""
+        noise), each scored fit then finished under the jerk prior (``jerk_std`` rad/s^3;
+        :func:`chainspace.robot.selection.under_jerk_prior`; None: not): (winner, fits best first, whether
+        it ties, the prior the fits end under or None, the noise sigma px, the scored (objective, fit) pairs)."""
         r = results[0]
         sigma = _noise_sigma(r["out"][2], self.w2)
         F = len(self.tracks)
@@ -400,6 +403,15 @@ class WeakRefinement:
                                      self.max_iter, self.tol, self.seen_from_wrong_side, self.reflected_start,
                                      self.rebranch, scored, reflect_always=self.legs_mirror)
         self.n_iter += it
+        if jerk_std is not None and F > 3:  # the answer and its alternatives finished under the jerk prior
+            prior = jerk_prior(self.unseen2, sigma, jerk_std, fps, speed_decay_s)
+            fits = [(x["out"][0], x["out"][1], x["free_prior"], x["delta"]) for _, x in scored]
+            for i, (objective, out) in enumerate(under_jerk_prior(self.robot, fits, self.tracks, self.w2, prior,
+                                                                  self.max_iter, self.tol)):
+                x = scored[i][1]
+                x.update(out=out, q=out[0], down=_looks_down(out[1]))
+                scored[i] = (objective, x)
+                self.n_iter += out[5]
         results = [r] + [x for _, x in sorted(scored, key=lambda sx: sx[0]) if x is not r]
         return r, results, tied, prior, sigma, scored
 
