@@ -580,8 +580,8 @@ def fit_joint_angles(
 
 def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter, tol,
                      loss_scale_px, mirror, view_from, fps, accel_std, speed_decay_s, intrinsics,
-                     image_size, search_ties=True, start_stride: int | None = None,
-                     jerk_std: float | None = 10.0) -> JointFit:
+                     image_size, search_ties=True, start_stride: int | None = None, *,
+                     jerk_std: float | None) -> JointFit:
     """fit_joint_angles with a pinhole camera (module docstring, "Perspective"); its weak start on every
     ``start_stride``-th frame (None: :func:`_start_stride`)."""
     from ..cameras.pinhole import PinholeCamera, as_camera

@@ -32,8 +32,8 @@ from ..progress import stage, stage_steps
 from .kinematics import RobotKinematics, _rest_distance, _wrapped
 from .observability import _hold_with_prior, _structural
 from .compiled import map_tasks
-from .solver import _huber, _motion_prior, _noise_sigma, _normal_equations, _sequence_lm, _smooth_lm, \
-    _smoothed_objective, jerk_prior
+from .solver import _huber, _noise_sigma, _normal_equations, _sequence_lm, _smooth_lm, \
+    _smoothed_objective, acceleration_prior, jerk_prior
 from .selection import under_jerk_prior
 from .views import _PinholeView, _camera_view, _pinhole_from_weak, turn_between_deg
 from .candidates import TIE_VARIANCES, _motion_distance, _pinhole_twin, _same_motion, _static_line_starts, \
@@ -407,9 +407,7 @@ class PerspectiveRefinement:
         if not (self.smooth and self.accel_std is not None and len(self.tr) >= 3):
             return None
         sigma = max(_noise_sigma(out[2], self.w), 1e-3)
-        mu = sigma ** 2 / (float(self.accel_std) / float(self.fps) ** 2) ** 2
-        decay_frames = np.inf if self.speed_decay_s is None else self.speed_decay_s * float(self.fps)
-        return _motion_prior(self.unseen, mu, decay_frames)
+        return acceleration_prior(self.unseen, sigma, self.accel_std, self.fps, self.speed_decay_s)
 
     def camera_start(self, st: dict, focals: list[float]) -> tuple:
         """The camera alone from the start's pose (the weak camera's, and with K known PnP's), then

@@ -126,8 +126,8 @@ def _motion_prior(unseen: np.ndarray, mu: float, decay_frames: float):
     import scipy.sparse as sp
 
     F, nv = unseen.shape
-    L = sp.diags([np.ones(F - 2), -2 * np.ones(F - 2), np.ones(F - 2)], [0, 1, 2], shape=(F - 2, F))
-    D1 = sp.kron(sp.diags([-np.ones(F - 1), np.ones(F - 1)], [0, 1], shape=(F - 1, F)), sp.eye(nv))
+    L = _differences(F, 2)
+    D1 = sp.kron(_differences(F, 1), sp.eye(nv))
     speed = sp.diags(_beyond_sightings(unseen).reshape(-1) * (mu / decay_frames ** 2))
     return (sp.kron(mu * (L.T @ L), sp.eye(nv)) + D1.T @ speed @ D1).tocsr()
 
@@ -169,6 +169,25 @@ def _jerk_prior(unseen: np.ndarray, mu: float, decay_frames: float, accel_decay_
     return (sp.kron(mu * (L.T @ L), sp.eye(nv)) + D1.T @ speed @ D1 + D2.T @ accel @ D2).tocsr()
 
 
+def _weight(sigma: float, std: float, fps: float, order: int) -> float:
+    """The motion prior's weight mu per frame^order: an order-th derivative of ``std`` (rad/s^order, RMS)
+    costs as much as pixel noise of ``sigma`` px at ``fps`` frames a second."""
+    return sigma ** 2 / (float(std) / float(fps) ** order) ** 2
+
+
+def _decay_frames(speed_decay_s: float | None, fps: float) -> float:
+    """The speed decay beyond a joint's sightings in frames (inf: none)."""
+    return np.inf if speed_decay_s is None else speed_decay_s * float(fps)
+
+
+def acceleration_prior(unseen: np.ndarray, sigma: float, accel_std: float, fps: float,
+                       speed_decay_s: float | None):
+    """The acceleration prior of a fit (:func:`_motion_prior`): joint accelerations of ``accel_std``
+    (rad/s^2, RMS) cost as much as pixel noise of ``sigma`` (px) at ``fps`` frames a second; beyond a
+    joint's sightings its speed decays over ``speed_decay_s`` (None: never)."""
+    return _motion_prior(unseen, _weight(sigma, accel_std, fps, 2), _decay_frames(speed_decay_s, fps))
+
+
 def jerk_prior(unseen: np.ndarray, sigma: float, jerk_std: float, fps: float, speed_decay_s: float | None):
     """The jerk prior of a fit (:func:`_jerk_prior`): joint jerks of ``jerk_std`` (rad/s^3, RMS) cost as
     much as pixel noise of ``sigma`` (px) at ``fps`` frames a second; beyond a joint's sightings its
@@ -178,9 +197,8 @@ def jerk_prior(unseen: np.ndarray, sigma: float, jerk_std: float, fps: float, sp
     poorly (near a singularity, at the ends of a sequence) towards rest. It is the stiffer model for the
     search for the right motion, this the better one for its final values
     (:func:`chainspace.robot.selection.under_jerk_prior`)."""
-    mu = sigma ** 2 / (float(jerk_std) / float(fps) ** 3) ** 2
-    decay_frames = np.inf if speed_decay_s is None else speed_decay_s * float(fps)
-    return _jerk_prior(unseen, mu, decay_frames, ACCEL_DECAY_S * float(fps))
+    return _jerk_prior(unseen, _weight(sigma, jerk_std, fps, 3), _decay_frames(speed_decay_s, fps),
+                       ACCEL_DECAY_S * float(fps))
 
 
 def _smoothed_objective(prior, q: np.ndarray, rn: np.ndarray, w: np.ndarray, delta: float | None) -> float:

@@ -30,7 +30,7 @@ from .compiled import imap_tasks, map_tasks
 from .kinematics import RobotKinematics, _rest_distance, _roughness
 from .observability import _gauge_directions, _hold, _hold_with_prior, _unseen
 from .selection import _most_probable, _prefer_rest, under_jerk_prior, view_side_valid
-from .solver import _huber, _motion_prior, _noise_sigma, _rms_per_frame, _robust_scale, _sequence_lm, \
+from .solver import _huber, _noise_sigma, _rms_per_frame, _robust_scale, _sequence_lm, acceleration_prior, \
     jerk_prior
 from .starts import _fit_3d, _initial_camera, _sequential_ik
 from .uncertainty import assess_fit
@@ -394,9 +394,7 @@ class WeakRefinement:
         F = len(self.tracks)
         if accel_std is None or F < 3 or self.per_frame or sigma <= 1e-6:
             return r, results, tied, None, sigma, []
-        mu = sigma ** 2 / (float(accel_std) / float(fps) ** 2) ** 2  # the prior's weight
-        decay_frames = np.inf if speed_decay_s is None else speed_decay_s * float(fps)
-        prior = _motion_prior(self.unseen2, mu, decay_frames)
+        prior = acceleration_prior(self.unseen2, sigma, accel_std, fps, speed_decay_s)
         stage("robot fit: choosing among %d fits with the motion prior", len(results))
         scored: list = []
         r, tied, it = _most_probable(self.robot, results, self.tracks, self.w2, prior, max(sigma, self.px_floor),
