@@ -239,6 +239,8 @@ def _fit_summary(fit: Any) -> dict[str, Any]:
         "urdf_path": getattr(fit, "urdf_path", None),
         "n_frames": int(q.shape[0]),
         "fps": getattr(fit, "fps", None),
+        "accel_std": getattr(fit, "accel_std", None),
+        "jerk_std": getattr(fit, "jerk_std", None),
         "joint_names": list(fit.joint_names),
         "observable": _array_or_none(getattr(fit, "observable", None)),
         "converged_fraction": float(conv.mean()) if conv.size else None,
@@ -270,6 +272,7 @@ def _fit_summary(fit: Any) -> dict[str, Any]:
                   "positions": "the reconstruction's units", "residual_3d_mm": "mm on the robot (URDF scale)",
                   "residual_3d_reconstruction_units": "the reconstruction's units (scale-free)",
                   "residual_px": "px", "noise_px": "px per image coordinate", "fps": "frames per second",
+                  "accel_std": "rad/s^2 (m/s^2 for prismatic joints), RMS", "jerk_std": "rad/s^3 (m/s^3), RMS",
                   "q_std": "rad (revolute, continuous) or m (prismatic), per frame and joint; NaN where held",
                   "alternatives": "other motions that fit as well; score in noise variances above the best"},
     }
@@ -281,7 +284,7 @@ _ARRAY_FIELDS = {
     "joint_fit": ("q", "joint_names", "observable", "positions", "residual_3d", "residual_px", "converged",
                   "scale", "rotation", "translation", "cameras", "translations_2d", "urdf_path", "message",
                   "n_iter", "intrinsics", "camera_pose", "focal_px", "focal_std_px", "q_std", "noise_px",
-                  "alternatives", "ambiguous", "joint_reasons", "fps"),
+                  "alternatives", "ambiguous", "joint_reasons", "fps", "accel_std", "jerk_std"),
 }
 _JSON_FIELDS = ("history", "timings")  # dicts: kept in the summary JSON inside the NPZ
 

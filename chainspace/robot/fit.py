@@ -225,6 +225,10 @@ __all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"
 # the most frames that the weak fit starting a perspective fit looks at: it only gives starts, whose branches
 # the perspective fit chooses again in every frame (_start_stride)
 START_FRAMES = 100
+# a fit whose motion conflicts with its motion prior (solver.prior_conflict above this) is made again under
+# wider priors, at most this many times (_prior_matched)
+PRIOR_CONFLICT = 3.0
+MAX_WIDENINGS = 2
 FACE_ON_NOTE = "the tracked points beyond "
 PERSPECTIVE_HINT = ("a camera within a few robot reaches sees the robot in perspective, which this fit (given no "
                     "intrinsics or image size) does not model: pass intrinsics= (a calibration), "
@@ -456,9 +460,58 @@ def fit_joint_angles(
     if perspective is False and (intrinsics is not None or image_size is not None):
         raise DescriptionError("perspective=False fits weak perspective: give no intrinsics or image_size with it")
     if intrinsics is not None or image_size is not None or perspective:
-        return _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter,
-                                tol, loss_scale_px, mirror, view_from, fps, accel_std, speed_decay_s, intrinsics,
-                                image_size, search_ties, jerk_std=jerk_std)
+        def once(a_std, j_std):
+            return _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter,
+                                    tol, loss_scale_px, mirror, view_from, fps, a_std, speed_decay_s, intrinsics,
+                                    image_size, search_ties, jerk_std=j_std)
+    else:
+        def once(a_std, j_std):
+            return _fit_weak(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter, tol,
+                             loss_scale_px, mirror, view_from, fps, a_std, j_std, speed_decay_s, search_ties, _starts,
+                             _assess)
+    fit = once(accel_std, jerk_std)
+    if _starts is not None:  # a perspective fit's starts: that fit checks its own answer's prior
+        return fit
+    return _prior_matched(fit, once, accel_std, jerk_std)
+
+
+def _prior_matched(fit: JointFit, once, accel_std: float | None, jerk_std: float | None) -> JointFit:
+    """``fit``, or where its motion conflicts with the motion prior it was fitted under
+    (:func:`chainspace.robot.solver.prior_conflict`) the fit ``once(accel_std, jerk_std)`` made again under
+    priors widened to twice the fitted motion's own rates (up to :data:`MAX_WIDENINGS` times), with a note.
+
+    Why: the priors' defaults suit a robot at work filmed at the given fps (the benchmarks' motions
+    accelerate at up to 7 rad/s^2 RMS). A faster motion, or too low an fps, makes the prior pull every joint
+    towards a slower motion that the tracks do not support, and the standard deviations, taken under the
+    same prior, do not show it: the robot-from-video tutorial's milling contour (12 frames at 30 fps,
+    accelerations of 35-44 rad/s^2 RMS) came out 2-11 degrees off with deviations of 0.6-2.4, though the true
+    motion reprojects to 0.03 px; fitted under the widened priors, 0.04-0.4 degrees off."""
+    from .solver import prior_conflict
+
+    widened = False
+    for _ in range(MAX_WIDENINGS):
+        ratio, rates = prior_conflict(fit.angles, fit.fps, fit.accel_std, fit.jerk_std)
+        if ratio <= PRIOR_CONFLICT:
+            break
+        accel_std, jerk_std = (None if std is None else max(std, 2.0 * rate)
+                               for std, rate in zip((fit.accel_std, fit.jerk_std), rates))
+        stage("robot fit: the motion is %.0f times faster than the motion prior allows: again, under wider priors",
+              ratio)
+        fit, widened = once(accel_std, jerk_std), (ratio, fit.accel_std, fit.jerk_std)
+    if widened:
+        ratio, a0, j0 = widened
+
+        def priors(a, j):
+            return f"accel_std={a:.3g} rad/s^2" + ("" if j is None else f", jerk_std={j:.3g} rad/s^3")
+
+        fit.message += (f"; the motion moved {ratio:.0f} times faster than the motion prior allows ({priors(a0, j0)} at "
+                        f"{fit.fps:g} fps): fitted again under {priors(fit.accel_std, fit.jerk_std)} (check fps)")
+    return fit
+
+
+def _fit_weak(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, transform, max_iter, tol, loss_scale_px,
+              mirror, view_from, fps, accel_std, jerk_std, speed_decay_s, search_ties, _starts, _assess) -> JointFit:
+    """:func:`fit_joint_angles` through a weak-perspective camera, its options checked."""
     poses, chain, urdf, tracks, confidence = _inputs(rec_or_poses, urdf, chain, tracks, confidence)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -574,7 +627,7 @@ def fit_joint_angles(
         tracks=tracks, confidence=confidence, positions_base=pos_base, input_poses=poses, timings=timings,
         q_std=trust.get("q_std"), noise_px=trust.get("noise_px"), alternatives=trust.get("alternatives", []),
         ambiguous=trust.get("ambiguous", np.zeros(robot.nv, bool)), joint_reasons=trust.get("reasons", []),
-        fps=float(fps),
+        fps=float(fps), accel_std=accel_std if smoothed else None, jerk_std=jerk_std if smoothed else None,
     )
 
 
@@ -731,6 +784,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         camera_pose=(view.R[0].copy(), view.t[0].copy()), focal_px=focal, focal_std_px=focal_std,
         q_std=trust["q_std"], noise_px=trust["noise_px"], alternatives=trust["alternatives"],
         ambiguous=trust["ambiguous"], joint_reasons=trust["reasons"], fps=float(fps),
+        accel_std=accel_std, jerk_std=None if accel_std is None else jerk_std,
     )
 
 

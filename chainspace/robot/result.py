@@ -92,7 +92,9 @@ class JointFit:
     deviation, plus any such alternative's difference, is more than that ("uncertain",
     :data:`~chainspace.robot.uncertainty.UNCERTAIN_SIGMAS`);
     ``joint_reasons`` (nv,) str: why, per joint ("" where not flagged). ``fps``: the frame rate (frames per
-    second) the motion prior assumed, which plots and the viewer play the motion at.
+    second) the motion prior assumed, which plots and the viewer play the motion at; ``accel_std``,
+    ``jerk_std``: the priors the answer was fitted under (the ones asked for, or wider where the motion
+    was faster than they allow: see ``message``).
     """
 
     q: np.ndarray
@@ -127,6 +129,8 @@ class JointFit:
     ambiguous: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # (nv,)
     joint_reasons: list[str] = field(default_factory=list)  # (nv,) why each ambiguous joint is; "" elsewhere
     fps: float | None = None  # frames per second the motion prior assumed; None in fits saved before it was kept
+    accel_std: float | None = None  # the motion priors the answer was fitted under (rad/s^2, rad/s^3); None: none
+    jerk_std: float | None = None
 
     @property
     def n_frames(self) -> int:

@@ -201,6 +201,22 @@ def jerk_prior(unseen: np.ndarray, sigma: float, jerk_std: float, fps: float, sp
                        ACCEL_DECAY_S * float(fps))
 
 
+def prior_conflict(angles: np.ndarray, fps: float | None, accel_std: float | None,
+                   jerk_std: float | None) -> tuple[float, tuple[float, float]]:
+    """How far a fitted motion, ``angles`` (F, nv; rad, m for prismatic joints) at ``fps``, exceeds the
+    motion priors it was fitted under: the largest ratio of a joint's RMS acceleration (over the frames)
+    to ``accel_std`` and of its RMS jerk to ``jerk_std`` (a prior that is None counts 0); and those
+    largest RMS rates (rad/s^2, rad/s^3). A fit pulled by its prior moves slower than the motion, so a
+    ratio of several means the prior, not the tracks, set the answer's pace."""
+    rates, ratio = [], 0.0
+    for order, std in ((2, accel_std), (3, jerk_std)):
+        d = np.diff(np.asarray(angles, float), order, axis=0) * float(fps or 0.0) ** order
+        rate = float(np.sqrt((d ** 2).mean(0)).max()) if d.size else 0.0
+        rates.append(rate)
+        ratio = max(ratio, rate / std if std else 0.0)
+    return ratio, (rates[0], rates[1])
+
+
 def _smoothed_objective(prior, q: np.ndarray, rn: np.ndarray, w: np.ndarray, delta: float | None) -> float:
     """What :func:`_smooth_lm` minimises: robust residuals (norms rn (F, J), weights w, Huber threshold
     delta) plus the motion prior q' prior q' (q: the angles (F, nv), :meth:`RobotKinematics.angles`)."""
