@@ -11,7 +11,7 @@ import pytest
 
 from chainspace.chain import KinematicChain
 from chainspace.errors import ChainspaceError, OutputExistsError
-from chainspace.io.results import atomic_write, load_results, save_results
+from chainspace.io.results import atomic_write, load_results, result_paths, save_results
 from chainspace.robot.result import playback_fps
 
 
@@ -114,6 +114,17 @@ def test_save_joint_fit(tmp_path):
     np.testing.assert_array_equal(back.observable, fit.observable)
     np.testing.assert_allclose(back.chain.rest_pose, np.eye(3))
     assert back.chain.metadata["extra_frames"] == {"tip": ["b", [0.0, 0.0, 0.1]]}
+
+
+def test_result_paths_are_the_files_save_results_writes(tmp_path):
+    """A folder gets reconstruction.*; a name with a result suffix is a stem (its suffix replaced)."""
+    rec = _reconstruction()
+    assert save_results(rec, tmp_path / "a") == result_paths(tmp_path / "a", "reconstruction")
+    assert save_results(rec, tmp_path / "walk.csv") == result_paths(tmp_path / "walk.csv", "reconstruction")
+    assert [p.name for p in result_paths("walk.csv", "reconstruction")] == ["walk.npz", "walk.csv", "walk.json"]
+    assert [str(p) for p in result_paths("fit", "validation")] == ["fit/validation.json", "fit/validation.md"]
+    with pytest.raises(ValueError, match="kind"):
+        result_paths("x", "poses")
 
 
 def test_save_results_rejects_unknown_objects(tmp_path):

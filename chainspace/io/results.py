@@ -34,7 +34,8 @@ import numpy as np
 
 from ..errors import ChainspaceError, DescriptionNotFoundError, OutputExistsError, TrackError
 
-__all__ = ["atomic_write", "check_writable", "save_results", "load_results", "to_jsonable", "write_json"]
+__all__ = ["atomic_write", "check_writable", "result_paths", "save_results", "load_results", "to_jsonable",
+           "write_json"]
 
 UNITS = {"positions": "m", "bone_lengths": "m", "angles": "rad (revolute) or m (prismatic)",
          "tracks": "px (image units of the input)", "time": "s"}
@@ -149,6 +150,16 @@ def _stem_path(out: str | os.PathLike, kind: str) -> Path:
     if out.suffix.lower() in _SUFFIXES:
         return out.with_suffix("")
     return out / _STEMS[kind]
+
+
+def result_paths(out: str | os.PathLike, kind: str, formats: Sequence[str] = ("npz", "csv", "json")) -> list[Path]:
+    """The files :func:`save_results` writes for a result of ``kind`` (``"reconstruction"``, ``"joint_fit"``
+    or ``"validation"``) given ``out``: so that a caller can check them before the work starts."""
+    if kind not in _STEMS:
+        raise ValueError(f"kind must be one of {', '.join(_STEMS)}, not {kind!r}")
+    stem = _stem_path(out, kind)
+    formats = ("json", "md") if kind == "validation" else tuple(formats)
+    return [stem.with_name(f"{stem.name}.{fmt}") for fmt in formats]
 
 
 def _chain_arrays(chain: Any) -> dict[str, np.ndarray]:
@@ -343,12 +354,11 @@ def save_results(obj: Any, out: str | os.PathLike, *, overwrite: bool = False,
     ``.md`` table). Nothing is written if any target exists and ``overwrite`` is False.
     """
     kind = _kind(obj)
-    stem = _stem_path(out, kind)
     formats = ("json", "md") if kind == "validation" else tuple(formats)
     unknown = set(formats) - {"npz", "csv", "json", "md"}
     if unknown:
         raise TrackError(f"unknown result format(s) {', '.join(sorted(unknown))}; use npz, csv, json")
-    paths = {fmt: stem.with_name(f"{stem.name}.{fmt}") for fmt in formats}
+    paths = dict(zip(formats, result_paths(out, kind, formats)))
     check_writable(paths.values(), overwrite)
 
     if kind == "validation":
