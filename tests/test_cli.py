@@ -281,3 +281,44 @@ def test_reconstruct_checks_the_files_a_stem_out_writes_before_the_work(tmp_path
     result = runner.invoke(app, ["reconstruct", "arm_tracks.csv", "-c", "no_such_chain", "-o", "res/walk.npz"])
     assert result.exit_code == 2
     assert "res/walk.csv already exists; use --overwrite to replace it" in result.stderr
+
+
+def _arm_tracks(path, names=None):
+    from chainspace.io.descriptions import load_chain
+    from chainspace.io.tracks import save_tracks
+
+    joints = load_chain("milling_arm").joints
+    tracks = np.random.default_rng(0).uniform(100, 500, (12, len(joints), 2))
+    save_tracks(path, tracks, names or joints)
+    return path
+
+
+def test_link_messages_speak_of_link(tmp_path):
+    """Tracked links that --link leaves out are unselected (no --extra-frame advice); an unknown --link
+    name is one plain sentence with the likely meant links."""
+    tracks = _arm_tracks(tmp_path / "t.csv")
+    result = _run("reconstruct", tracks, "-c", "milling_arm", "--link", "base_link", "--link", "link_2",
+                  "-o", tmp_path / "r")
+    assert ("7 tracked points not selected for the chain milling_arm by --link, left out: link_1, link_3"
+            in result.stderr)
+    assert "--extra-frame" not in result.stderr
+    result = _run("reconstruct", tracks, "-c", "milling_arm", "--link", "lnk_2", "-o", tmp_path / "r")
+    assert result.exit_code == 2
+    assert "milling_arm.urdf: unknown link 'lnk_2' in --link (did you mean 'link_2'" in result.stderr
+
+
+def test_a_misspelt_track_name_gets_a_hint(tmp_path):
+    from chainspace.io.descriptions import load_chain
+
+    names = [n if n != "link_2" else "lnk_2" for n in load_chain("milling_arm").joints]
+    result = _run("reconstruct", _arm_tracks(tmp_path / "t.csv", names), "-c", "milling_arm", "-o", tmp_path / "r")
+    assert result.exit_code == 2
+    assert "left out: lnk_2 (did you mean 'link_2'? a point on a robot link" in result.stderr
+    assert "joint 'link_2' is never seen" in result.stderr
+
+
+def test_view_of_a_tracks_file_says_it_is_no_result(tmp_path):
+    result = _run("view", _arm_tracks(tmp_path / "t.csv"), "--html", tmp_path / "v.html")
+    assert result.exit_code == 2
+    assert "t.csv: not a chainspace result file (the .npz that reconstruct or fit writes)" in result.stderr
+    assert "pickle" not in result.stderr

@@ -127,6 +127,22 @@ def test_result_paths_are_the_files_save_results_writes(tmp_path):
         result_paths("x", "poses")
 
 
+@pytest.mark.parametrize("name,content", [("tracks.csv", b"frame,joint,x,y\n0,a,1,2\n"), ("q.npy", None),
+                                          ("other.npz", None)])
+def test_a_file_that_is_no_result_is_said_to_be_none(tmp_path, name, content):
+    """Not numpy's words about pickles: what the file is not, and what a result file is."""
+    path = tmp_path / name
+    if content is not None:
+        path.write_bytes(content)
+    elif name.endswith(".npy"):
+        np.save(path, np.zeros(3))
+    else:
+        np.savez(path, x=np.zeros(3))
+    with pytest.raises(ChainspaceError) as err:
+        load_results(path)
+    assert str(err.value) == f"{path}: not a chainspace result file (the .npz that reconstruct or fit writes)"
+
+
 def test_save_results_rejects_unknown_objects(tmp_path):
     with pytest.raises(ChainspaceError, match="cannot save"):
         save_results(object(), tmp_path)

@@ -445,6 +445,15 @@ def _rebuild(kind: str, data: dict[str, np.ndarray], summary: dict, chain: Any) 
         return None
 
 
+def _npz_entries(path: Path) -> dict[str, np.ndarray]:
+    """The arrays of an .npz by name; none for an .npy (one array, no name): not a result either."""
+    loaded = np.load(path, allow_pickle=False)
+    if not hasattr(loaded, "files"):
+        return {}
+    with loaded as npz:
+        return {k: npz[k] for k in npz.files}
+
+
 def load_results(path: str | os.PathLike) -> Any:
     """Read an NPZ written by :func:`save_results` back (a folder holding one NPZ works too).
 
@@ -461,13 +470,15 @@ def load_results(path: str | os.PathLike) -> Any:
         path = found[0]
     if not path.exists():
         raise DescriptionNotFoundError(f"{path}: no such result file")
+    not_a_result = f"{path}: not a chainspace result file (the .npz that reconstruct or fit writes)"
     try:
-        with np.load(path, allow_pickle=False) as npz:
-            data = {k: npz[k] for k in npz.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise TrackError(f"{path}: not a chainspace result NPZ ({exc})") from None
+        data = _npz_entries(path)
+    except ValueError:  # neither .npy nor .npz: numpy's text is about pickles, which would mislead
+        raise TrackError(not_a_result) from None
+    except (OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise TrackError(f"{not_a_result}; it cannot be read: {exc}") from None
     if "kind" not in data:
-        raise TrackError(f"{path}: not a chainspace result NPZ (no 'kind' entry)")
+        raise TrackError(not_a_result)  # an .npy, or an .npz of other arrays
     summary = json.loads(str(data.pop("summary_json"))) if "summary_json" in data else {}
     kind = str(data.pop("kind"))
     chain = _chain_from_arrays(data)
