@@ -856,12 +856,11 @@ def markers(
     chainspace.video.markers.marker_chain(urdf, map) (see the robot-from-video tutorial). The detected
     corners go to <out>.corners.npz (corners (F, M, 4, 2) px, NaN where not seen).
     """
-    from .io.descriptions import shipped_path
     from .io.results import atomic_write
     from .video.markers import detect_markers, load_marker_map, save_marker_tracks, shipped_marker_map
 
     map_path = Path(map) if Path(map).suffix else shipped_marker_map(map)
-    urdf_path = None if urdf is None else (Path(urdf) if Path(urdf).suffix else shipped_path(urdf))
+    urdf_path = None if urdf is None else Path(_urdf_path(urdf))  # a file, a shipped or example robot name
     mmap = load_marker_map(map_path, urdf=urdf_path)
     corners_path = out.with_name(out.stem + ".corners.npz")
     _check_outputs([("--out", out, [out, corners_path])], overwrite,
