@@ -406,8 +406,8 @@ def reconstruct(
     chain: Annotated[str, typer.Option("--chain", "-c", help="Shipped name (chainspace chains) or a "
                                                              ".urdf/.asf/.bvh/.toml file.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Folder for reconstruction.npz/.csv/.json, or a file "
-                                                          "stem whose suffix is replaced (res/walk.npz: "
-                                                          "res/walk.npz, .csv, .json).")],
+                                                          "name ending .npz/.csv/.json whose suffix is replaced "
+                                                          "(res/walk.npz: res/walk.npz, .csv, .json).")],
     init_pose: Annotated[Optional[Path], typer.Option(help="Initial pose (J, 3) in metres, .npy/.csv; "
                                                            "default the chain's rest pose.")] = None,
     method: Annotated[Method, typer.Option(help="default (KCS then refinement), kcs, or rigid.")] = Method.default,
@@ -481,9 +481,9 @@ def fit(
                                                 "(reconstructed first).")],
     urdf: Annotated[Optional[str], typer.Option(help="The robot's URDF (file or shipped name); default "
                                                      "the one the reconstruction's chain came from.")] = None,
-    out: Annotated[Path, typer.Option("--out", "-o", help="Folder for joint_angles.npz/.csv/.json, or a file stem "
-                                                          "whose suffix is replaced (fit/arm.npz: fit/arm.npz, "
-                                                          ".csv, .json).")] = Path("."),
+    out: Annotated[Path, typer.Option("--out", "-o", help="Folder for joint_angles.npz/.csv/.json, or a file name "
+                                                          "ending .npz/.csv/.json whose suffix is replaced "
+                                                          "(fit/arm.npz: fit/arm.npz, .csv, .json).")] = Path("."),
     camera: Annotated[Camera, typer.Option(help="static (tripod) or per-frame camera.")] = Camera.static,
     intrinsics: Intrinsics = None,
     fov: Fov = None,
@@ -664,7 +664,8 @@ def validate(
     truth: Annotated[Optional[Path], typer.Option(help="True joint angles, one per joint (F, nv) "
                                                        "or Pinocchio's q (F, nq), rad/m: .npy, .csv or .npz ('q').")] = None,
     out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Folder for validation.json/.md, or a file "
-                                                                    "stem whose suffix is replaced.")] = None,
+                                                                    "name ending .json/.md whose suffix is "
+                                                                    "replaced.")] = None,
     threshold: Annotated[Optional[list[str]], typer.Option(
         metavar="NAME=VALUE", help="Set a check's threshold, repeatable: joint_rms_deg, error_3d_pct_reach (with "
                                    "--truth), tracks_misfit (without), reprojection_rms_px, bone_error_pct; "
