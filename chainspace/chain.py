@@ -312,6 +312,8 @@ class KinematicChain:
         order = sorted(range(len(bones)), key=lambda k: self._depth[self._index[bones[k][1]]])
         rest = None if self._rest_pose is None else self._rest_pose[keep]
         links = [p for p in self._rigid_links if p[0] in joints and p[1] in joints]
+        # the points dropped, so that tracks of them are said to be unselected rather than unknown
+        left_out = list(self.metadata.get("left_out", ())) + [j for j in self._joints if j not in joints]
         return KinematicChain(
             [self._joints[i] for i in keep],
             [bones[k] for k in order],
@@ -319,7 +321,7 @@ class KinematicChain:
             links,
             name=name or self.name,
             source=self.source,
-            metadata=self.metadata,
+            metadata={**self.metadata, **({"left_out": left_out} if left_out else {})},
         )
 
     def reorder(self, values: Any, names: Sequence[str], *, axis: int = -2, fill: float = np.nan) -> np.ndarray:

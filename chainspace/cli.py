@@ -4,7 +4,8 @@ Exit codes, for scripts: 0 success; 1 the work ran but its result is not good (a
 that did not converge, a validation that failed); 2 bad usage or bad input (the message says what and
 where, on one line of stderr, without a traceback); 3 an unexpected internal error (a bug: one line naming the
 exception; please report it). Every command that writes refuses to replace an
-existing file unless given ``--overwrite``, and writes each file atomically.
+existing file unless given ``--overwrite``, never replaces one of its own inputs, and writes each file
+atomically.
 """
 
 from __future__ import annotations
@@ -86,6 +87,8 @@ _SHELL_ADVICE = (
     ("pass overwrite=True", "use --overwrite"),
     ("drop it with chain.subset(...) or provide its track",
      "leave it out with --link (name every point to keep) or give its track"),
+    ("drop them with chain.subset(...) or provide their tracks",
+     "leave them out with --link (name every point to keep) or give their tracks"),
     ("pass urdf=PATH or a chain made by chainspace.from_urdf", "give --urdf"),
     ("pass urdf=PATH", "give --urdf"),
     ("pass format= one of", "give --format, one of"),
@@ -93,6 +96,9 @@ _SHELL_ADVICE = (
     ("pass intrinsics= (a calibration), image_size=(width, height) or perspective=True",
      "give --intrinsics FILE (a calibration), --image-size W H or --perspective"),
     ("(extra_frames)", "(--extra-frame)"),
+    ("(links=, chain.subset)", "by --link"),
+    ("links= '", "--link '"),
+    ("in links=", "in --link"),
     ("an extra frame: extra_frames=)", "an extra frame: --extra-frame NAME=LINK:x,y,z)"),
     ("(fit.alternatives)", "(alternatives in joint_angles.npz; drawn grey in the joint plots)"),
     ("(RMS over the frames, fit.q_std)", "(RMS over the frames; per frame: q_std in joint_angles.npz)"),
@@ -181,6 +187,11 @@ def _say(message: str) -> None:
     _console().print(message, markup=False, soft_wrap=True)
 
 
+def _count(n: int, noun: str) -> str:
+    """``1 recording``, ``2 recordings``."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
 # ---------------------------------------------------------------------------------------- inputs
 def _load_array(path: Path, what: str, keys: tuple[str, ...] = ()) -> np.ndarray:
     """An array from .npy, .npz (first of ``keys`` present) or .csv (header row, first column frame)."""
@@ -245,10 +256,41 @@ def _csv_columns(path: Path, names: list[str]) -> np.ndarray:
     return data
 
 
-def _check_outputs(paths: list[Path | None], overwrite: bool) -> None:
+# An output as (option, its value) or (option, its value, the files it writes): "--out res" writes
+# res/reconstruction.npz, ...; a value of None is an option not given.
+Output = tuple[str, Any] | tuple[str, Any, list[Path]]
+
+
+def _check_outputs(outputs: list[Output], overwrite: bool, inputs: dict[str, Any] | None = None) -> None:
+    """Refuse, before any work, an output that is one of the command's ``inputs`` (role -> path), even
+    with --overwrite (the input would be lost for good), then an existing output without --overwrite."""
     from .io.results import check_writable
 
-    check_writable([p for p in paths if p is not None], overwrite)
+    given = [(o[0], Path(o[1]), [Path(p) for p in (o[2] if len(o) > 2 else [o[1]])])
+             for o in outputs if o[1] is not None]
+    for option, value, files in given:
+        for role, source in (inputs or {}).items():
+            clash = next((f for f in files if source is not None and _same_file(f, Path(source))), None)
+            if clash is not None:
+                raise TrackError(f"{option} {value} would replace the input {role} {source}; choose another output")
+    check_writable([f for _, _, files in given for f in files], overwrite)
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether paths ``a`` and ``b`` name one file (links and ``..`` seen through)."""
+    import os
+
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)
+        return a.resolve() == b.resolve()
+    except OSError:  # unreadable: the write or the read will say so
+        return False
+
+
+def _file_named(value: str | None) -> Path | None:
+    """A --chain/--urdf/--map value as a path when it names a file (not a shipped name), else None."""
+    return None if value is None or not Path(value).suffix else Path(value)
 
 
 class Method(str, Enum):
@@ -363,7 +405,9 @@ def reconstruct(
                                                 "or an OpenPose folder.")],
     chain: Annotated[str, typer.Option("--chain", "-c", help="Shipped name (chainspace chains) or a "
                                                              ".urdf/.asf/.bvh/.toml file.")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="Folder for reconstruction.npz/.csv/.json.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Folder for reconstruction.npz/.csv/.json, or a file "
+                                                          "name ending .npz/.csv/.json whose suffix is replaced "
+                                                          "(res/walk.npz: res/walk.npz, .csv, .json).")],
     init_pose: Annotated[Optional[Path], typer.Option(help="Initial pose (J, 3) in metres, .npy/.csv; "
                                                            "default the chain's rest pose.")] = None,
     method: Annotated[Method, typer.Option(help="default (KCS then refinement), kcs, or rigid.")] = Method.default,
@@ -386,10 +430,11 @@ def reconstruct(
     """Reconstruct 3D motion from the 2D tracks of a chain seen by one camera.
 
     Writes reconstruction.npz (all arrays), reconstruction.csv (frame,joint,x,y,z in metres) and
-    reconstruction.json (convergence, errors, timings) into --out. Exit code 1 if it did not converge.
+    reconstruction.json (convergence, errors, timings) into --out (or --out's stem .npz/.csv/.json).
+    Exit code 1 if it did not converge.
     """
     from .reconstruction.pipeline import reconstruct as run
-    from .io.results import save_results
+    from .io.results import result_paths, save_results
     from .io.tracks import load_tracks
 
     _positive("--fps", fps)
@@ -398,7 +443,10 @@ def reconstruct(
         _positive("--image-size", v)
     camera = _camera_option(intrinsics, fov, image_size)
     extras = _parse_extra_frames(extra_frame)
-    _check_outputs([out / f"reconstruction.{x}" for x in ("npz", "csv", "json")] + [bvh, html], overwrite)
+    _check_outputs([("--out", out, result_paths(out, "reconstruction")), ("--bvh", bvh), ("--html", html)],
+                   overwrite, {"tracks file": tracks, "initial pose": init_pose, "truth file": truth,
+                               "calibration": intrinsics, "chain description": _file_named(chain),
+                               "marker map": _file_named(markers)})
     intrinsics_kw = _intrinsics_kwargs(run, camera, "reconstruct")
     if markers is not None:
         _no_links_with_markers(link)
@@ -433,7 +481,9 @@ def fit(
                                                 "(reconstructed first).")],
     urdf: Annotated[Optional[str], typer.Option(help="The robot's URDF (file or shipped name); default "
                                                      "the one the reconstruction's chain came from.")] = None,
-    out: Annotated[Path, typer.Option("--out", "-o", help="Folder for joint_angles.npz/.csv/.json.")] = Path("."),
+    out: Annotated[Path, typer.Option("--out", "-o", help="Folder for joint_angles.npz/.csv/.json, or a file name "
+                                                          "ending .npz/.csv/.json whose suffix is replaced "
+                                                          "(fit/arm.npz: fit/arm.npz, .csv, .json).")] = Path("."),
     camera: Annotated[Camera, typer.Option(help="static (tripod) or per-frame camera.")] = Camera.static,
     intrinsics: Intrinsics = None,
     fov: Fov = None,
@@ -466,12 +516,14 @@ def fit(
     and the principal point. Exit code 1 if some frames did not converge.
     """
     from .robot.fit import fit_joint_angles
-    from .io.results import load_results, save_results
+    from .io.results import load_results, result_paths, save_results
 
     _positive("--fps", fps)
     extras = _parse_extra_frames(extra_frame)
     pinhole = _camera_option(intrinsics, fov, image_size)  # --camera is the static/per-frame choice
-    _check_outputs([out / f"joint_angles.{x}" for x in ("npz", "csv", "json")] + [html], overwrite)
+    _check_outputs([("--out", out, result_paths(out, "joint_fit")), ("--html", html)], overwrite,
+                   {"reconstruction or tracks file": source, "URDF": _file_named(urdf), "calibration": intrinsics,
+                    "marker map": _file_named(markers)})
     fit_kw = _intrinsics_kwargs(fit_joint_angles, pinhole, "fit")
     if pinhole is None and image_size is not None:  # the image's size without its focal: the focal is fitted
         fit_kw["image_size"] = _image_size(image_size)
@@ -611,7 +663,9 @@ def validate(
     fit_file: Annotated[Path, typer.Argument(metavar="FIT", help="joint_angles.npz written by 'chainspace fit'.")],
     truth: Annotated[Optional[Path], typer.Option(help="True joint angles, one per joint (F, nv) "
                                                        "or Pinocchio's q (F, nq), rad/m: .npy, .csv or .npz ('q').")] = None,
-    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Folder for validation.json/.md.")] = None,
+    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Folder for validation.json/.md, or a file "
+                                                                    "name ending .json/.md whose suffix is "
+                                                                    "replaced.")] = None,
     threshold: Annotated[Optional[list[str]], typer.Option(
         metavar="NAME=VALUE", help="Set a check's threshold, repeatable: joint_rms_deg, error_3d_pct_reach (with "
                                    "--truth), tracks_misfit (without), reprojection_rms_px, bone_error_pct; "
@@ -621,13 +675,13 @@ def validate(
     """Validate a joint-angle fit: per-joint angle errors and the 3D error against the truth, or without
     one whether the fitted robot explains its tracks; reprojection error, and bone lengths against the
     URDF. Prints the report table; exit code 1 if validation failed."""
-    from .io.results import load_results, save_results
+    from .io.results import load_results, result_paths, save_results
     from .robot.validation import validate as run
 
     thresholds = _thresholds(threshold or [])
-
     if out is not None:
-        _check_outputs([out / "validation.json", out / "validation.md"], overwrite)
+        _check_outputs([("--out", out, result_paths(out, "validation"))], overwrite,
+                       {"fit": fit_file, "truth file": truth})
     fitted = load_results(fit_file)
     if not hasattr(fitted, "q"):
         raise TrackError(f"{fit_file}: not a joint fit (write one with 'chainspace fit')")
@@ -675,8 +729,8 @@ def view(
         raise _fail(f"{intrinsics}: the calibration has no image size; add --image-size WIDTH HEIGHT to "
                     "draw the camera", EXIT_BAD_INPUT)
     kwargs_camera = {} if camera is None else {"camera": camera}
-    if html is not None:
-        _check_outputs([html], overwrite)
+    _check_outputs([("--html", html)], overwrite, {"result": result, "truth file": truth,
+                                                   "reconstruction": reconstruction, "calibration": intrinsics})
     loaded = load_results(result)
     if hasattr(loaded, "q"):
         rec = None if reconstruction is None else load_results(reconstruction)
@@ -717,7 +771,7 @@ def overlay(
     from .video.overlay import draw_overlay
 
     _positive("--fps", fps)
-    _check_outputs([out], overwrite)
+    _check_outputs([("--out", out)], overwrite, {"video": video, "result": result, "tracks file": tracks})
     written = draw_overlay(video, result, tracks=tracks, out=out, side_by_side=side_by_side, overwrite=overwrite,
                            progress=progress, fps=fps)
     _say(f"wrote {written}")
@@ -759,7 +813,7 @@ def bench(
 
     stem = None if out is None else out / f"bench_{suite.value}"
     if stem is not None:
-        _check_outputs([stem.with_suffix(".md"), stem.with_suffix(".json")], overwrite)
+        _check_outputs([("--out", out, [stem.with_suffix(".md"), stem.with_suffix(".json")])], overwrite)
     mod, run, fmt = _suite(suite.value)
     console = _console()
     with console.status(f"running the {suite.value} benchmark{' (quick)' if quick else ''}") as status:
@@ -803,15 +857,15 @@ def markers(
     chainspace.video.markers.marker_chain(urdf, map) (see the robot-from-video tutorial). The detected
     corners go to <out>.corners.npz (corners (F, M, 4, 2) px, NaN where not seen).
     """
-    from .io.descriptions import shipped_path
-    from .io.results import atomic_write, check_writable
+    from .io.results import atomic_write
     from .video.markers import detect_markers, load_marker_map, save_marker_tracks, shipped_marker_map
 
     map_path = Path(map) if Path(map).suffix else shipped_marker_map(map)
-    urdf_path = None if urdf is None else (Path(urdf) if Path(urdf).suffix else shipped_path(urdf))
+    urdf_path = None if urdf is None else Path(_urdf_path(urdf))  # a file, a shipped or example robot name
     mmap = load_marker_map(map_path, urdf=urdf_path)
     corners_path = out.with_name(out.stem + ".corners.npz")
-    check_writable([out, corners_path], overwrite)
+    _check_outputs([("--out", out, [out, corners_path])], overwrite,
+                   {"video": video, "marker map": map_path, "URDF": urdf_path})
     found = detect_markers(video, mmap, progress=sys.stderr.isatty())
     save_marker_tracks(out, found, overwrite=overwrite)
     with atomic_write(corners_path, "wb", overwrite) as fh:
@@ -906,6 +960,8 @@ def batch(
     """
     from .batch import run_batch
 
+    # the summary is rewritten on every run (a resumed batch updates it): only an input is protected
+    _check_outputs([("--out", out, [out / "summary.csv", out / "summary.html"])], True, {"manifest": manifest})
     result = run_batch(manifest, out, scheduler=scheduler, n_workers=workers, progress=progress)
     shown = ("name", "status", "frames", "seconds", "reprojection_px", "worst_joint", "worst_joint_rms", "error")
     typer.echo("| " + " | ".join(shown) + " |\n|" + "---|" * len(shown))
@@ -917,8 +973,8 @@ def batch(
         _say(f"wrote {p}")
     _say(repr(result))
     if not result.ok:
-        raise _fail(f"{len(result.failed)} recordings failed, {len(result.not_good)} did not converge or "
-                    "failed validation (see the summary)", EXIT_NOT_GOOD)
+        raise _fail(f"{_count(len(result.failed), 'recording')} failed, {len(result.not_good)} did not converge "
+                    "or failed validation (see the summary)", EXIT_NOT_GOOD)
 
 
 @app.command(epilog="Example: chainspace track arm.mp4 --points keyframes.json --chain milling_arm --out tracks.csv")
@@ -952,6 +1008,8 @@ def track(
 
     _positive("--fps", fps)
     _positive("--fb-max-px", fb_max_px)
+    _check_outputs([("--out", out)], overwrite, {"video": video, "key-frame file": points,
+                                                 "chain description": _file_named(chain)})
     result = track_video(video, points, out, chain=chain, fps=fps, overwrite=overwrite, progress=progress,
                          window=window, levels=levels, fb_max_px=fb_max_px, refine=refine)
     _say(f"wrote {out}")
@@ -986,6 +1044,7 @@ def pick(
     if any(f < 0 for f in frame):
         raise TrackError(f"--frame must be >= 0, not {min(frame)}")
     point_names = None if names is None else [n.strip() for n in names.split(",") if n.strip()]
+    _check_outputs([("--out", out)], overwrite, {"video": video, "chain description": _file_named(chain)})
     _say(f"wrote {write_picker(video, out, frame, chain=chain, names=point_names, fps=fps, overwrite=overwrite)}")
 
 

@@ -1,8 +1,9 @@
 """UR10 (example-robot-data): check a camera set-up before filming.
 
-Its tool flange joint turns about the axis through the last tracked point, so it is reported as not
-observable; the first joint is seen relative to the first frame only. Add a tracked tool point off the
-flange axis to see the last joint.
+Its tool flange joint (wrist_3_joint) turns about the axis through the flange's origin, so with the link
+origins alone it would be reported as not observable: the tracked tool point ``tool_mark``, off that
+axis, makes it observable. The first joint is seen relative to the first frame only (no tracked point
+on the base off its axis).
 
     python examples/ur10.py
 """

@@ -197,6 +197,7 @@ def test_cli_exit_codes(manifest, tmp_path):
                               "--no-progress"])
     assert res.exit_code == 1, res.output
     assert "| walk_a | ok | 60 |" in res.stdout and "| lost | failed |" in res.stdout
+    assert "error: 1 recording failed, 0 did not converge" in res.stderr
     bad = tmp_path / "bad.csv"
     bad.write_text("name,tracks\nx,y\n", encoding="utf-8")
     res = runner.invoke(app, ["batch", str(bad), "--out", str(tmp_path / "out2")])

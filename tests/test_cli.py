@@ -218,3 +218,107 @@ def test_demo_adds_viewer_and_plots(monkeypatch, tmp_path):
     again = runner.invoke(app, ["demo", "--out", str(tmp_path / "d")])
     assert again.exit_code == 2 and "--overwrite" in again.stderr
     assert runner.invoke(app, ["demo", "--out", str(tmp_path / "d"), "--overwrite"]).exit_code == 1
+
+
+def _inputs(d):
+    """Stand-in input files: the commands must refuse before they read them."""
+    for name in ("arm_tracks.csv", "arm.mp4", "keyframes.json", "fit.npz", "truth.npy", "summary.csv", "report.md"):
+        (d / name).write_text("an input\n")
+    return d
+
+
+@pytest.mark.parametrize("args,option,role,name", [
+    (["reconstruct", "arm_tracks.csv", "--chain", "milling_arm", "--out", "arm_tracks.csv"], "--out",
+     "tracks file", "arm_tracks.csv"),
+    (["reconstruct", "arm_tracks.csv", "--chain", "milling_arm", "--out", "arm_tracks.npz"], "--out",
+     "tracks file", "arm_tracks.csv"),  # a stem: .npz, .csv and .json are written
+    (["reconstruct", "arm_tracks.csv", "--chain", "milling_arm", "--out", "r", "--bvh", "truth.npy",
+      "--truth", "truth.npy"], "--bvh", "truth file", "truth.npy"),
+    (["fit", "fit.npz", "--out", "fit.csv"], "--out", "reconstruction or tracks file", "fit.npz"),
+    (["validate", "report.md", "--out", "report.csv"], "--out", "fit", "report.md"),  # report.json, .md
+    (["view", "fit.npz", "--html", "fit.npz"], "--html", "result", "fit.npz"),
+    (["overlay", "arm.mp4", "fit.npz", "--out", "arm.mp4"], "--out", "video", "arm.mp4"),
+    (["track", "arm.mp4", "--points", "keyframes.json", "--chain", "milling_arm", "--out", "keyframes.json"],
+     "--out", "key-frame file", "keyframes.json"),
+    (["pick", "arm.mp4", "--out", "arm.mp4"], "--out", "video", "arm.mp4"),
+    (["markers", "arm.mp4", "--map", "milling_arm", "--out", "arm.mp4"], "--out", "video", "arm.mp4"),
+])
+def test_no_command_replaces_its_own_input(tmp_path, monkeypatch, args, option, role, name):
+    monkeypatch.chdir(_inputs(tmp_path))
+    for extra in ([], ["--overwrite"]):
+        result = runner.invoke(app, args + extra)
+        assert result.exit_code == 2, result.output
+        assert f"{option} " in result.stderr and f"would replace the input {role} {name}" in result.stderr
+        assert "use --overwrite" not in result.stderr  # never offered for an input
+    assert (tmp_path / name).read_text() == "an input\n"
+
+
+def test_an_input_reached_through_a_link_or_a_folder_is_refused(tmp_path, monkeypatch):
+    monkeypatch.chdir(_inputs(tmp_path))
+    (tmp_path / "link.csv").symlink_to(tmp_path / "arm_tracks.csv")
+    result = runner.invoke(app, ["reconstruct", "link.csv", "-c", "milling_arm", "-o", "arm_tracks.npz",
+                                 "--overwrite"])
+    assert result.exit_code == 2 and "the input tracks file link.csv" in result.stderr
+    (tmp_path / "res").mkdir()
+    (tmp_path / "res" / "reconstruction.csv").write_text("an input\n")
+    result = runner.invoke(app, ["reconstruct", "res/reconstruction.csv", "-c", "milling_arm", "-o", "res",
+                                 "--overwrite"])
+    assert result.exit_code == 2
+    assert "--out res would replace the input tracks file res/reconstruction.csv" in result.stderr
+
+
+def test_batch_does_not_write_its_summary_over_the_manifest(tmp_path):
+    (tmp_path / "summary.csv").write_text("name,tracks,chain\n")
+    result = runner.invoke(app, ["batch", str(tmp_path / "summary.csv"), "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "would replace the input manifest" in result.stderr
+
+
+def test_reconstruct_checks_the_files_a_stem_out_writes_before_the_work(tmp_path, monkeypatch):
+    """--out res/walk.npz writes res/walk.npz, .csv and .json: an existing one is refused at once."""
+    monkeypatch.chdir(_inputs(tmp_path))
+    (tmp_path / "res").mkdir()
+    (tmp_path / "res" / "walk.csv").write_text("an earlier result\n")
+    result = runner.invoke(app, ["reconstruct", "arm_tracks.csv", "-c", "no_such_chain", "-o", "res/walk.npz"])
+    assert result.exit_code == 2
+    assert "res/walk.csv already exists; use --overwrite to replace it" in result.stderr
+
+
+def _arm_tracks(path, names=None):
+    from chainspace.io.descriptions import load_chain
+    from chainspace.io.tracks import save_tracks
+
+    joints = load_chain("milling_arm").joints
+    tracks = np.random.default_rng(0).uniform(100, 500, (12, len(joints), 2))
+    save_tracks(path, tracks, names or joints)
+    return path
+
+
+def test_link_messages_speak_of_link(tmp_path):
+    """Tracked links that --link leaves out are unselected (no --extra-frame advice); an unknown --link
+    name is one plain sentence with the likely meant links."""
+    tracks = _arm_tracks(tmp_path / "t.csv")
+    result = _run("reconstruct", tracks, "-c", "milling_arm", "--link", "base_link", "--link", "link_2",
+                  "-o", tmp_path / "r")
+    assert ("7 tracked points not selected for the chain milling_arm by --link, left out: link_1, link_3"
+            in result.stderr)
+    assert "--extra-frame" not in result.stderr
+    result = _run("reconstruct", tracks, "-c", "milling_arm", "--link", "lnk_2", "-o", tmp_path / "r")
+    assert result.exit_code == 2
+    assert "milling_arm.urdf: unknown link 'lnk_2' in --link (did you mean 'link_2'" in result.stderr
+
+
+def test_a_misspelt_track_name_gets_a_hint(tmp_path):
+    from chainspace.io.descriptions import load_chain
+
+    names = [n if n != "link_2" else "lnk_2" for n in load_chain("milling_arm").joints]
+    result = _run("reconstruct", _arm_tracks(tmp_path / "t.csv", names), "-c", "milling_arm", "-o", tmp_path / "r")
+    assert result.exit_code == 2
+    assert "left out: lnk_2 (did you mean 'link_2'? a point on a robot link" in result.stderr
+    assert "joint 'link_2' is never seen" in result.stderr
+
+
+def test_view_of_a_tracks_file_says_it_is_no_result(tmp_path):
+    result = _run("view", _arm_tracks(tmp_path / "t.csv"), "--html", tmp_path / "v.html")
+    assert result.exit_code == 2
+    assert "t.csv: not a chainspace result file (the .npz that reconstruct or fit writes)" in result.stderr
+    assert "pickle" not in result.stderr

@@ -133,3 +133,15 @@ def test_cli_fit_takes_an_example_robot_by_name(example_urdf, tmp_path):
     assert _urdf_path("milling_arm").endswith("milling_arm.urdf")
     with pytest.raises(DescriptionNotFoundError):
         _urdf_path("ur55")
+
+
+def test_shipped_points_example_robots_to_load_chain():
+    """`shipped` loads what chainspace ships; an example-robot-data name is pointed to load_chain, and a
+    typo gets the names --chain would take (shipped and example robots) as "did you mean"."""
+    with pytest.raises(DescriptionNotFoundError, match=r"'ur10' is an example-robot-data robot, not a description "
+                                                       r"shipped with chainspace: use chainspace.load_chain\('ur10'\)"):
+        shipped("ur10")
+    with pytest.raises(DescriptionNotFoundError, match=r"no shipped description 'ur11'.*Did you mean 'ur10'"):
+        shipped("ur11")
+    with pytest.raises(DescriptionNotFoundError, match=r"no shipped description 'ur11'.*Did you mean 'ur10'"):
+        load_chain("ur11")

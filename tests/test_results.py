@@ -11,7 +11,7 @@ import pytest
 
 from chainspace.chain import KinematicChain
 from chainspace.errors import ChainspaceError, OutputExistsError
-from chainspace.io.results import atomic_write, load_results, save_results
+from chainspace.io.results import atomic_write, load_results, result_paths, save_results
 from chainspace.robot.result import playback_fps
 
 
@@ -114,6 +114,33 @@ def test_save_joint_fit(tmp_path):
     np.testing.assert_array_equal(back.observable, fit.observable)
     np.testing.assert_allclose(back.chain.rest_pose, np.eye(3))
     assert back.chain.metadata["extra_frames"] == {"tip": ["b", [0.0, 0.0, 0.1]]}
+
+
+def test_result_paths_are_the_files_save_results_writes(tmp_path):
+    """A folder gets reconstruction.*; a name with a result suffix is a stem (its suffix replaced)."""
+    rec = _reconstruction()
+    assert save_results(rec, tmp_path / "a") == result_paths(tmp_path / "a", "reconstruction")
+    assert save_results(rec, tmp_path / "walk.csv") == result_paths(tmp_path / "walk.csv", "reconstruction")
+    assert [p.name for p in result_paths("walk.csv", "reconstruction")] == ["walk.npz", "walk.csv", "walk.json"]
+    assert [str(p) for p in result_paths("fit", "validation")] == ["fit/validation.json", "fit/validation.md"]
+    with pytest.raises(ValueError, match="kind"):
+        result_paths("x", "poses")
+
+
+@pytest.mark.parametrize("name,content", [("tracks.csv", b"frame,joint,x,y\n0,a,1,2\n"), ("q.npy", None),
+                                          ("other.npz", None)])
+def test_a_file_that_is_no_result_is_said_to_be_none(tmp_path, name, content):
+    """Not numpy's words about pickles: what the file is not, and what a result file is."""
+    path = tmp_path / name
+    if content is not None:
+        path.write_bytes(content)
+    elif name.endswith(".npy"):
+        np.save(path, np.zeros(3))
+    else:
+        np.savez(path, x=np.zeros(3))
+    with pytest.raises(ChainspaceError) as err:
+        load_results(path)
+    assert str(err.value) == f"{path}: not a chainspace result file (the .npz that reconstruct or fit writes)"
 
 
 def test_save_results_rejects_unknown_objects(tmp_path):

@@ -48,7 +48,8 @@ def test_the_perspective_fit_logs_its_stages_in_order(caplog):
     with caplog.at_level(logging.INFO, logger="chainspace.stages"):
         fit_joint_angles(rec, intrinsics=trial.intrinsics)
     messages = [r.getMessage() for r in caplog.records if r.name == "chainspace.stages"]
-    expected = ["robot fit through a pinhole camera", "robot fit, 20 frames: the 3D points",
+    expected = ["robot fit through a pinhole camera: first its weak-perspective start, on all 20 frames",
+                "weak start, 20 frames: the 3D points",
                 "robot fit: refining on the tracks, candidate 1/", "robot fit, perspective: the camera from start 1/",
                 "robot fit, perspective: refining in full, start 1/", "robot fit, perspective: other minima",
                 "robot fit, perspective: the joint angles' standard deviations"]
@@ -56,6 +57,22 @@ def test_the_perspective_fit_logs_its_stages_in_order(caplog):
     assert None not in found and found == sorted(found), messages
     other = next(m for m in messages if m.startswith("robot fit, perspective: other minima"))
     assert other.endswith("search 1/6"), other  # a counted stage (its six searches)
+
+
+def test_a_long_perspective_fit_says_its_weak_start_sees_some_frames(caplog, monkeypatch):
+    """The weak start of a long clip sees every stride-th frame: said so, not "robot fit, N frames"."""
+    from chainspace.robot import fit as fit_module
+
+    chain = robot_chain("milling arm")
+    trial = synthesize(chain, n_frames=20, noise_px=1.0, seed=4)
+    rec = reconstruct(trial.tracks, chain, seed=4)
+    monkeypatch.setattr(fit_module, "START_FRAMES", 10)  # 20 frames as a long clip: every 2nd seen
+    with caplog.at_level(logging.INFO, logger="chainspace.stages"):
+        fit_joint_angles(rec, intrinsics=trial.intrinsics, search_ties=False)
+    messages = [r.getMessage() for r in caplog.records if r.name == "chainspace.stages"]
+    assert "robot fit through a pinhole camera: first its weak-perspective start, on 10 of 20 frames" in messages
+    assert any(m.startswith("weak start, 10 frames: the 3D points") for m in messages), messages
+    assert not any(m.startswith("robot fit, 10 frames") for m in messages), messages
 
 
 def test_the_weak_fit_counts_its_smoothed_choice(caplog):

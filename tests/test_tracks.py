@@ -52,7 +52,7 @@ def test_a_named_point_the_chain_lacks_is_reported(tmp_path):
     P, C = _tracks(4, HUMAN17 + ["tool_marker"], missing=0.0)
     path = tmp_path / "t.csv"
     save_tracks(path, P, HUMAN17 + ["tool_marker"], C)
-    with pytest.warns(UserWarning, match=r"t.csv: 1 tracked point\(s\) not in the chain human17, left out: tool_marker"):
+    with pytest.warns(UserWarning, match=r"t.csv: 1 tracked point not in the chain human17, left out: tool_marker"):
         Q, _, names = load_tracks(path, chain=_human17())
     np.testing.assert_array_equal(Q, P[:, :17])
     P, C = _tracks(4, COCO17, missing=0.0)
@@ -60,6 +60,25 @@ def test_a_named_point_the_chain_lacks_is_reported(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         load_tracks(tmp_path / "c.json", chain=_human17())
+
+
+def test_points_a_selection_left_out_and_misspelt_names_are_told_apart(tmp_path):
+    """Tracks of points the chain's selection dropped are said to be unselected (no extra-frame advice);
+    a name the chain lacks that is close to an untracked joint gets a "did you mean"."""
+    links = ["base", "link_1", "link_2", "link_3", "tool"]
+    arm = KinematicChain(links, list(zip(links, links[1:])), name="arm")
+    P, C = _tracks(4, links, missing=0.0)
+    save_tracks(tmp_path / "t.csv", P, links, C)
+    with pytest.warns(UserWarning) as caught:
+        load_tracks(tmp_path / "t.csv", chain=arm.subset(["base", "link_2", "tool"]))
+    (message,) = [str(w.message) for w in caught]
+    assert message.endswith("t.csv: 2 tracked points not selected for the chain arm (links=, chain.subset), "
+                            "left out: link_1, link_3")
+    names = [n if n != "link_2" else "lnk_2" for n in links]
+    save_tracks(tmp_path / "typo.csv", P, names, C)
+    with pytest.warns(UserWarning, match=r"1 tracked point not in the chain arm, left out: lnk_2 "
+                                         r"\(did you mean 'link_2'\? a point on a robot link"):
+        load_tracks(tmp_path / "typo.csv", chain=arm)
 
 
 @pytest.mark.parametrize("fmt,suffix,names", [

@@ -194,7 +194,7 @@ def test_links_keeps_a_subset_in_the_given_order(example_urdf):
     assert chain.metadata["merged"]["tool0"] == ["ee_link", "tool0"]
     with pytest.raises(DescriptionError, match="'ee_link' and 'tool0'"):
         from_urdf(path, links=["world", "ee_link", "tool0"])
-    with pytest.raises(DescriptionError, match="unknown link 'elbow'"):
+    with pytest.raises(DescriptionError, match="unknown link 'elbow' in links="):
         from_urdf(path, links=["world", "elbow"])
 
 

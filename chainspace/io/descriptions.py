@@ -70,17 +70,26 @@ def shipped_path(name: str) -> Path:
         raise DescriptionNotFoundError(f"a shipped description name is a non-empty string, not {name!r}")
     available = list_shipped()
     matches = [n for n in available if n == name or Path(n).stem == name]
+    if not matches and name in EXAMPLE_ROBOTS:
+        raise DescriptionNotFoundError(f"{name!r} is an example-robot-data robot, not a description shipped with "
+                                       f"chainspace: use chainspace.load_chain({name!r})")
     if not matches:
-        close = difflib.get_close_matches(name, available + [Path(n).stem for n in available], n=3)
-        hint = f" Did you mean {', '.join(map(repr, close))}?" if close else ""
-        raise DescriptionNotFoundError(
-            f"no shipped description {name!r}; available: {', '.join(available) or '(none)'}.{hint}"
-        )
+        raise DescriptionNotFoundError(_unknown_name(name, available))
     if len(matches) > 1:
         raise DescriptionError(f"{name!r} is ambiguous: {', '.join(matches)}; give the extension")
     resource = importlib.resources.files("chainspace.robots") / matches[0]
     # An installed package is a folder on disk (setuptools package data), so this is a real path.
     return Path(str(resource))
+
+
+def _unknown_name(name: str, available: list[str]) -> str:
+    """No description is called ``name``: what is, by name, and the names close to it (shipped or
+    example-robot-data, as ``--chain`` takes them)."""
+    stems = [Path(n).stem for n in available]
+    close = difflib.get_close_matches(name, stems + list(EXAMPLE_ROBOTS), n=3)
+    hint = f" Did you mean {', '.join(map(repr, close))}?" if close else ""
+    return (f"no shipped description {name!r}; available: {', '.join(available) or '(none)'}. Robots of "
+            f"example-robot-data by name: {', '.join(EXAMPLE_ROBOTS)}.{hint}")
 
 
 def shipped(name: str, **kwargs: Any) -> KinematicChain:
@@ -133,8 +142,7 @@ def description_path(path_or_name: str | Path) -> Path:
                 raise DescriptionNotFoundError(str(missing)) from None
         if path.suffix.lower() in _LOADERS:
             raise DescriptionNotFoundError(f"description file not found: {path}") from None
-        raise DescriptionNotFoundError(f"{exc} Robots of example-robot-data by name: "
-                                       f"{', '.join(EXAMPLE_ROBOTS)}.") from None
+        raise DescriptionNotFoundError(str(exc)) from None
 
 
 def _example_robot_data_root() -> Path | None:

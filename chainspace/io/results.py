@@ -34,7 +34,8 @@ import numpy as np
 
 from ..errors import ChainspaceError, DescriptionNotFoundError, OutputExistsError, TrackError
 
-__all__ = ["atomic_write", "check_writable", "save_results", "load_results", "to_jsonable", "write_json"]
+__all__ = ["atomic_write", "check_writable", "result_paths", "save_results", "load_results", "to_jsonable",
+           "write_json"]
 
 UNITS = {"positions": "m", "bone_lengths": "m", "angles": "rad (revolute) or m (prismatic)",
          "tracks": "px (image units of the input)", "time": "s"}
@@ -149,6 +150,16 @@ def _stem_path(out: str | os.PathLike, kind: str) -> Path:
     if out.suffix.lower() in _SUFFIXES:
         return out.with_suffix("")
     return out / _STEMS[kind]
+
+
+def result_paths(out: str | os.PathLike, kind: str, formats: Sequence[str] = ("npz", "csv", "json")) -> list[Path]:
+    """The files :func:`save_results` writes for a result of ``kind`` (``"reconstruction"``, ``"joint_fit"``
+    or ``"validation"``) given ``out``: so that a caller can check them before the work starts."""
+    if kind not in _STEMS:
+        raise ValueError(f"kind must be one of {', '.join(_STEMS)}, not {kind!r}")
+    stem = _stem_path(out, kind)
+    formats = ("json", "md") if kind == "validation" else tuple(formats)
+    return [stem.with_name(f"{stem.name}.{fmt}") for fmt in formats]
 
 
 def _chain_arrays(chain: Any) -> dict[str, np.ndarray]:
@@ -346,12 +357,11 @@ def save_results(obj: Any, out: str | os.PathLike, *, overwrite: bool = False,
     ``.md`` table). Nothing is written if any target exists and ``overwrite`` is False.
     """
     kind = _kind(obj)
-    stem = _stem_path(out, kind)
     formats = ("json", "md") if kind == "validation" else tuple(formats)
     unknown = set(formats) - {"npz", "csv", "json", "md"}
     if unknown:
         raise TrackError(f"unknown result format(s) {', '.join(sorted(unknown))}; use npz, csv, json")
-    paths = {fmt: stem.with_name(f"{stem.name}.{fmt}") for fmt in formats}
+    paths = dict(zip(formats, result_paths(out, kind, formats)))
     check_writable(paths.values(), overwrite)
 
     if kind == "validation":
@@ -438,6 +448,15 @@ def _rebuild(kind: str, data: dict[str, np.ndarray], summary: dict, chain: Any) 
         return None
 
 
+def _npz_entries(path: Path) -> dict[str, np.ndarray]:
+    """The arrays of an .npz by name; none for an .npy (one array, no name): not a result either."""
+    loaded = np.load(path, allow_pickle=False)
+    if not hasattr(loaded, "files"):
+        return {}
+    with loaded as npz:
+        return {k: npz[k] for k in npz.files}
+
+
 def load_results(path: str | os.PathLike) -> Any:
     """Read an NPZ written by :func:`save_results` back (a folder holding one NPZ works too).
 
@@ -454,13 +473,15 @@ def load_results(path: str | os.PathLike) -> Any:
         path = found[0]
     if not path.exists():
         raise DescriptionNotFoundError(f"{path}: no such result file")
+    not_a_result = f"{path}: not a chainspace result file (the .npz that reconstruct or fit writes)"
     try:
-        with np.load(path, allow_pickle=False) as npz:
-            data = {k: npz[k] for k in npz.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise TrackError(f"{path}: not a chainspace result NPZ ({exc})") from None
+        data = _npz_entries(path)
+    except ValueError:  # neither .npy nor .npz: numpy's text is about pickles, which would mislead
+        raise TrackError(not_a_result) from None
+    except (OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise TrackError(f"{not_a_result}; it cannot be read: {exc}") from None
     if "kind" not in data:
-        raise TrackError(f"{path}: not a chainspace result NPZ (no 'kind' entry)")
+        raise TrackError(not_a_result)  # an .npy, or an .npz of other arrays
     summary = json.loads(str(data.pop("summary_json"))) if "summary_json" in data else {}
     kind = str(data.pop("kind"))
     chain = _chain_from_arrays(data)

@@ -38,6 +38,7 @@ none). Chain joints still not found are NaN.
 from __future__ import annotations
 
 import csv
+import difflib
 import json
 import math
 import os
@@ -157,6 +158,34 @@ def _aliases(name: str) -> list[str]:
     return out
 
 
+def _points(n: int) -> str:
+    return f"{n} tracked point{'' if n == 1 else 's'}"
+
+
+def _listed(names: Sequence[str]) -> str:
+    return ", ".join(names[:6]) + (", ..." if len(names) > 6 else "")
+
+
+def _left_out(unused: list[str], chain: Any, found: list[str]) -> str:
+    """Why tracked points are left out: the chain is a selection that dropped them (links=, subset),
+    or the chain has no such point (a tool marker, or a typo: then the likely meant joint)."""
+    dropped = set(chain.metadata.get("left_out", ()))
+    unselected = [n for n in unused if n in dropped]
+    unknown = [n for n in unused if n not in dropped]
+    parts = []
+    if unselected:
+        parts.append(f"{_points(len(unselected))} not selected for the chain {chain.name} (links=, chain.subset), "
+                     f"left out: {_listed(unselected)}")
+    if unknown:
+        missing = [j for j in chain.joints if j not in found]  # a misspelt name's joint has no track
+        meant = {n: close[0] for n in unknown if (close := difflib.get_close_matches(n, missing, n=1))}
+        pairs = [f"{m!r}" if len(unknown) == 1 else f"{m!r} for {n!r}" for n, m in meant.items()]
+        hint = f"did you mean {', '.join(pairs)}? " if meant else ""
+        parts.append(f"{_points(len(unknown))} not in the chain {chain.name}, left out: {_listed(unknown)} "
+                     f"({hint}a point on a robot link is added as an extra frame: extra_frames=)")
+    return "; ".join(parts)
+
+
 def map_to_chain(tracks: np.ndarray, confidence: np.ndarray | None, names: Sequence[str], chain: Any,
                  source: object = None) -> tuple[np.ndarray, np.ndarray | None]:
     """Rearrange (F, N, 2) tracks named ``names`` into ``chain``'s joint order (NaN where unseen).
@@ -183,10 +212,7 @@ def map_to_chain(tracks: np.ndarray, confidence: np.ndarray | None, names: Seque
     unused = [n for n in names if n not in _DETECTOR_NAMES and not any(a in chain.joints for a in _aliases(n))
               and not any(n in srcs and t in chain.joints for t, srcs in DERIVED.items())]
     if found and unused:
-        warnings.warn(located(
-            f"{len(unused)} tracked point(s) not in the chain {chain.name}, left out: {', '.join(unused[:6])}"
-            f"{', ...' if len(unused) > 6 else ''} (a point on a robot link is added as an extra frame: "
-            "extra_frames=)", source), UserWarning, stacklevel=3)
+        warnings.warn(located(_left_out(unused, chain, found), source), UserWarning, stacklevel=3)
     if not found:
         raise TrackError(located(
             f"no joint name of the tracks matches the chain {chain.name} (tracks have "

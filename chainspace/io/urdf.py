@@ -466,10 +466,10 @@ def _select(
     points, rename = [], {}
     for n in names:
         if n not in rep and n not in extras:
-            raise tree.error(f"links names unknown link {n!r}{_hint(n, known)}")
+            raise tree.error(f"unknown link {n!r} in links={_hint(n, known)}")
         p = rep.get(n, n)
         if p in rename:
-            raise tree.error(f"links names {rename[p]!r} and {n!r}, which are one point (merged links)")
+            raise tree.error(f"links= {rename[p]!r} and {n!r} are one point (merged links); name one of them")
         rename[p] = n
         points.append(p)
     points += [e for e in extras if e not in rename]

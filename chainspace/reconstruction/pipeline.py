@@ -125,6 +125,18 @@ def _as_array(value: Any, what: str) -> np.ndarray:
     return arr
 
 
+def _never_seen(chain: KinematicChain, names: list[str], n_frames: int) -> str:
+    """The error for joints with no visible point in any frame: every one named."""
+    why = "(NaN or zero confidence in every frame)" if n_frames else "(the tracks have no frames)"
+    if len(names) == chain.n_joints:
+        return f"all {len(names)} joints of {chain.name} are never seen {why}: there is nothing to reconstruct"
+    if len(names) == 1:
+        return f"joint {names[0]!r} is never seen {why}; drop it with chain.subset(...) or provide its track"
+    listed = ", ".join(map(repr, names[:-1])) + f" and {names[-1]!r}"
+    return (f"{len(names)} joints, {listed}, are never seen {why}; drop them with chain.subset(...) or provide "
+            "their tracks")
+
+
 def _check_inputs(tracks, chain, init_pose, confidence, truth):
     if not isinstance(chain, KinematicChain):
         raise TrackError(f"chain must be a KinematicChain, not {type(chain).__name__}")
@@ -157,9 +169,7 @@ def _check_inputs(tracks, chain, init_pose, confidence, truth):
     seen = seen_points(W) & (c > 0)
     never = np.flatnonzero(~seen.any(0))
     if len(never):
-        names = ", ".join(repr(chain.joints[j]) for j in never[:5])
-        raise TrackError(f"joint {names} is never seen (NaN or zero confidence in every frame); "
-                         "drop it with chain.subset(...) or provide its track")
+        raise TrackError(_never_seen(chain, [chain.joints[j] for j in never], F))
     usable = seen.sum(1) >= MIN_POINTS
     if F < MIN_FRAMES or usable.sum() < MIN_FRAMES:
         raise TrackError(

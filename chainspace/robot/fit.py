@@ -530,7 +530,9 @@ def _fit_weak(rec_or_poses, urdf, chain, tracks, confidence, camera, refine, tra
                           unseen3)
     free_sim = np.array([transform != "none"] * 3 + [transform == "similarity"] + [transform != "none"] * 3)
     signs = (1.0, -1.0) if mirror and transform == "similarity" else (1.0,)
-    stage("robot fit, %d frames: the 3D points (%d mirror image%s)", F, len(signs), "s" if len(signs) > 1 else "")
+    # a perspective fit's weak start may see only some of the frames (_start_stride): its own count is said
+    stage("%s, %d frames: the 3D points (%d mirror image%s)", "robot fit" if _starts is None else "weak start", F,
+          len(signs), "s" if len(signs) > 1 else "")
     candidates, n_iter = _mirror_candidates(robot, Xz, w3, signs, blind, gauge0, free_blind, free_sim, unseen3,
                                             transform, max_iter, max_iter if tracks is None or not refine else 10, tol)
     mirror_tied = len(candidates) > 1 and candidates[1]["rms"] <= 1.5 * candidates[0]["rms"] + 1e-12
@@ -664,8 +666,13 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         raise DescriptionError("a pinhole camera (intrinsics, image_size or perspective=True) needs the 2D tracks "
                                "(tracks=...)")
     tracks_u = cam.undistort(tracks) if cam is not None else tracks
-    stage("robot fit through a pinhole camera: first the weak-perspective fit, its start")
     w2 = _weights(tracks_u, confidence)
+    # on a long sequence the weak fit only gives starts, so it sees every stride-th frame (module docstring,
+    # "Perspective"); with the focal unknown and every frame seen it may be the reported fit
+    stride = _start_stride(w2) if start_stride is None else start_stride
+    n_seen = len(range(0, len(tracks_u), stride))
+    stage("robot fit through a pinhole camera: first its weak-perspective start, on %s frames",
+          f"{n_seen} of {len(tracks_u)}" if n_seen < len(tracks_u) else f"all {n_seen}")
 
     def weak_fit(stride: int, reported: bool) -> tuple[JointFit, list]:
         """The weak-perspective fit of every stride-th frame, and its starts for this one; ``reported``: it
@@ -684,9 +691,6 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
                                    _assess=reported)
         return fit, found
 
-    # on a long sequence the weak fit only gives starts, so it sees every stride-th frame (module docstring,
-    # "Perspective"); with the focal unknown and every frame seen it may be the reported fit
-    stride = _start_stride(w2) if start_stride is None else start_stride
     weak, starts = weak_fit(stride, cam is None and stride == 1)
     every = slice(None, None, stride)
     robot = weak.kinematics()
