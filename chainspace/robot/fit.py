@@ -472,10 +472,10 @@ def fit_joint_angles(
     fit = once(accel_std, jerk_std)
     if _starts is not None:  # a perspective fit's starts: that fit checks its own answer's prior
         return fit
-    return _prior_matched(fit, once, accel_std, jerk_std)
+    return _prior_matched(fit, once)
 
 
-def _prior_matched(fit: JointFit, once, accel_std: float | None, jerk_std: float | None) -> JointFit:
+def _prior_matched(fit: JointFit, once) -> JointFit:
     """``fit``, or where its motion conflicts with the motion prior it was fitted under
     (:func:`chainspace.robot.solver.prior_conflict`) the fit ``once(accel_std, jerk_std)`` made again under
     priors widened to twice the fitted motion's own rates (up to :data:`MAX_WIDENINGS` times), with a note.
@@ -488,18 +488,19 @@ def _prior_matched(fit: JointFit, once, accel_std: float | None, jerk_std: float
     motion reprojects to 0.03 px; fitted under the widened priors, 0.04-0.4 degrees off."""
     from .solver import prior_conflict
 
-    widened = False
+    asked, first = (fit.accel_std, fit.jerk_std), None
     for _ in range(MAX_WIDENINGS):
         ratio, rates = prior_conflict(fit.angles, fit.fps, fit.accel_std, fit.jerk_std)
         if ratio <= PRIOR_CONFLICT:
             break
+        first = first or ratio
         accel_std, jerk_std = (None if std is None else max(std, 2.0 * rate)
                                for std, rate in zip((fit.accel_std, fit.jerk_std), rates))
         stage("robot fit: the motion is %.0f times faster than the motion prior allows: again, under wider priors",
               ratio)
-        fit, widened = once(accel_std, jerk_std), (ratio, fit.accel_std, fit.jerk_std)
-    if widened:
-        ratio, a0, j0 = widened
+        fit = once(accel_std, jerk_std)
+    if first:
+        ratio, (a0, j0) = first, asked
 
         def priors(a, j):
             return f"accel_std={a:.3g} rad/s^2" + ("" if j is None else f", jerk_std={j:.3g} rad/s^3")
@@ -748,12 +749,13 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
     msg = "; ".join(_face_on_notes(robot, q, view) + [m for m in weak_msg.split("; ") if not m.startswith(
         ("ambiguous: ", "poor fit: ", "uncertain: ", "not converged: ", FACE_ON_NOTE))])
     observable, relative, msg = _pinhole_observability(robot, weak, best, msg)
-    tie_note = "; the motion and its mirror image fit the data equally well (weak perspective)"
-    if tie_note in msg:
-        cut = msg.index(tie_note)
-        msg = msg[:cut]
+    said = bool(msg)  # "all joints observable" opens the message only where no note on a joint does
+    tie_note = "the motion and its mirror image fit the data equally well (weak perspective)"
+    if tie_note in msg:  # the weak fit's last note
+        msg = msg[:msg.index(tie_note)].removesuffix("; ")
+        said = bool(msg)
         if not best["settled"]:
-            msg += tie_note + ", and perspective does not tell them apart either"
+            msg += "; " + tie_note + ", and perspective does not tell them apart either"
     if best["n_alternatives"]:
         msg += ("; perspective chose among the weak-perspective fit and its mirror/flip alternatives"
                 + ("" if best["settled"] else " (within the noise: a guess)"))
@@ -764,6 +766,7 @@ def _fit_perspective(rec_or_poses, urdf, chain, tracks, confidence, camera, refi
         msg += f"; principal point estimated: ({cx:.0f} +- {sx:.0f}, {cy:.0f} +- {sy:.0f}) px"
     trust = best["trust"]  # q_std, noise_px, alternatives, ambiguous (chainspace.robot.uncertainty)
     msg += "".join("; " + n for n in trust["notes"])
+    msg = msg.removeprefix("; ") if said or trust["notes"] else "all joints observable" + msg
     converged = np.broadcast_to(np.asarray(best["conv"], bool), (len(q),)).copy()
     if stride > 1 and (not converged.all() or trust["poor"].any()):
         # the sparse start may be why (module docstring, "Perspective"): the fit again from every frame's start
@@ -832,7 +835,7 @@ def _pinhole_observability(robot: RobotKinematics, weak: JointFit, best: dict,
     """``observable``, ``relative`` (nv,) and the message of a perspective fit, from the joints its
     start held (:func:`chainspace.robot.perspective._pinhole_gauge`: blind ones at rest, structural
     gauges at rest in frame 0) rather than the weak fit's; ``msg`` (the weak fit's notes) with the weak
-    fit's observability notes replaced by the perspective fit's own.
+    fit's observability notes replaced by the perspective fit's own ("" where there is nothing to say).
 
     Why: the weak fit also holds a joint that its configuration makes a gauge, which a static pinhole
     camera sees; the perspective fit then fits it in every frame, and reporting it as seen only
@@ -843,4 +846,4 @@ def _pinhole_observability(robot: RobotKinematics, weak: JointFit, best: dict,
     weak_notes = _notes(robot, ~weak.observable & ~weak.relative, weak.relative & ~weak.observable, False)
     notes = _notes(robot, blind, gauge, False)
     kept = [m for m in msg.split("; ") if m and m not in weak_notes and m != "all joints observable"]
-    return ~(blind | gauge), gauge.copy(), "; ".join(notes + kept) or "all joints observable"
+    return ~(blind | gauge), gauge.copy(), "; ".join(notes + kept)
