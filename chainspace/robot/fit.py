@@ -378,7 +378,10 @@ def fit_joint_angles(
         ``sum |q[f-1] - 2 q[f] + q[f+1]|^2`` weighted so that accelerations of ``accel_std`` cost as
         much as pixel noise of the size of the residuals. Robots move smoothly; the prior averages the
         noise over neighbouring frames (the wrist joints, seen through short links, gain most). None:
-        every frame on its own.
+        every frame on its own. Where the fitted motion is faster than the priors allow (a joint's RMS
+        acceleration or jerk above :data:`PRIOR_CONFLICT` times ``accel_std`` / ``jerk_std``: a fast robot,
+        or too low an ``fps``), the fit is made again under priors widened to the motion's pace, and says so;
+        ``fit.accel_std``, ``fit.jerk_std`` are the priors used.
     jerk_std
         The prior on joint jerks (rad/s^3, RMS) that the answer is finished under: the fit searches for
         the motion, and for the others that fit as well, under the acceleration prior, then finishes each
