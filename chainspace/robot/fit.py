@@ -508,8 +508,9 @@ def _prior_matched(fit: JointFit, once) -> JointFit:
         def priors(a, j):
             return f"accel_std={a:.3g} rad/s^2" + ("" if j is None else f", jerk_std={j:.3g} rad/s^3")
 
-        fit.message += (f"; the motion moved {ratio:.0f} times faster than the motion prior allows ({priors(a0, j0)} at "
-                        f"{fit.fps:g} fps): fitted again under {priors(fit.accel_std, fit.jerk_std)} (check fps)")
+        fit.message += (f"; the motion moved {ratio:.0f} times faster than the motion prior allows "
+                        f"({priors(a0, j0)} at {fit.fps:g} fps): fitted again under "
+                        f"{priors(fit.accel_std, fit.jerk_std)} (check fps)")
     return fit
 
 
