@@ -111,3 +111,32 @@ def test_the_loosest_joints_turned_lead_out_of_a_wrong_minimum_of_the_wrist(trac
     best = min(found, key=lambda r: r["objective"])
     assert best["objective"] - true_min["objective"] < 1.0  # the true motion's minimum, or its exact twin
     assert error_3d(best) < 0.002
+
+
+def test_a_joint_a_frame_says_nothing_of_gets_a_vast_deviation_not_a_singular_matrix():
+    from chainspace.robot.perspective import _joint_deviations
+
+    H = np.zeros((2, 3, 3))
+    H[0] = np.diag([4.0, 1.0, 0.25])
+    H[1] = np.diag([4.0, 1.0, 0.0])  # joint 2 hidden in this frame
+    sd = _joint_deviations(H, 1.0)
+    assert np.allclose(sd[0], np.degrees([0.5, 1.0, 2.0])) and np.allclose(sd[1, :2], np.degrees([0.5, 1.0]))
+    assert sd[1, 2] > 1e100
+
+
+def test_a_fit_with_the_wrist_hidden_for_nine_frames_returns():
+    # the loosest-joint search inverted each frame's information matrix, singular where the wrist and end
+    # points are hidden: a LinAlgError out of fit_joint_angles (an occluder passing in front of a UR10)
+    import warnings
+
+    from chainspace.reconstruction.pipeline import reconstruct
+    from chainspace.robot.fit import fit_joint_angles
+
+    chain = robot_chain("UR10")
+    trial = synthesize(chain, n_frames=45, camera="pinhole", noise_px=1.0, seed=1)
+    tracks = trial.tracks.copy()
+    tracks[18:27, -3:] = np.nan  # wrist_2_link, wrist_3_link, ee_link
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_joint_angles(reconstruct(tracks, chain, seed=1), intrinsics=trial.intrinsics)
+    assert fit.converged.all() and np.isfinite(fit.q).all()

@@ -819,6 +819,15 @@ def _frame_information(robot: RobotKinematics, lead: dict, tracks: np.ndarray,
     return H + (~movable)[:, :, None] * np.eye(robot.nv) * 1e12 * (1.0 + np.abs(H).max()), movable, var
 
 
+def _joint_deviations(H: np.ndarray, var: float) -> np.ndarray:
+    """(F, nv) degrees: each joint's standard deviation from one frame's tracks alone, the other joints free
+    (the diagonal of ``var`` times the inverse of :func:`_frame_information`'s H (F, nv, nv)); vast where a
+    frame's tracks say nothing of a joint (its points hidden there: H is singular, which a plain inverse
+    refused with a LinAlgError: a UR10 with an occluder over its wrist for 9 frames)."""
+    lam, vec = np.linalg.eigh(H)
+    return np.degrees(np.sqrt(var * np.einsum("fvk,fk->fv", vec ** 2, 1.0 / np.maximum(lam, 1e-300))))
+
+
 def _weak_windows(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.ndarray, fps: float) -> list[dict]:
     """Other minima of the smoothed objective near the winner ``lead`` (a smoothed perspective fit: q,
     view, delta, prior, start), on windows: per frame the direction of the joint angles that the
@@ -968,7 +977,7 @@ def _loose_turns(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.n
     if lead["prior"] is None:
         return []
     H, movable, var = _frame_information(robot, lead, tracks, w)
-    sd = np.degrees(np.sqrt(var * np.einsum("fvv->fv", np.linalg.inv(H))))  # (F, nv) per joint, other joints free
+    sd = _joint_deviations(H, var)
     loose = np.flatnonzero(movable.all(0) & robot.turns_v & (np.median(sd, 0) > AMBIGUOUS_DEG))
     loose = loose[np.argsort(-np.median(sd[:, loose], 0))][:TURN_MAX_JOINTS]
     if not len(loose):
