@@ -506,6 +506,17 @@ def fit(
         "--search-ties/--no-search-ties", help="Also search for other motions that fit the tracks as well, "
                                                "and report the joints they leave ambiguous (on by default; "
                                                "--no-search-ties is faster and says less).")] = True,
+    accel_std: Annotated[float, typer.Option(
+        help="Motion prior: joint accelerations of this size (rad/s^2 RMS, at --fps) cost as much as the "
+             "pixel noise; the fit widens it where the motion is faster, and says so.")] = 3.0,
+    jerk_std: Annotated[float, typer.Option(
+        help="The prior on joint jerks (rad/s^3 RMS) that the answer is finished under.")] = 10.0,
+    speed_decay: Annotated[Optional[float], typer.Option(
+        help="Seconds over which a joint comes to rest before its first and after its last sighting "
+             "(default: it carries on at its last speed).")] = None,
+    motion_prior: Annotated[bool, typer.Option(
+        "--motion-prior/--no-motion-prior", help="Smooth the motion with the priors above (on by default; "
+                                                 "--no-motion-prior fits every frame on its own).")] = True,
     overwrite: Overwrite = False,
 ) -> None:
     """Fit the robot's joint angles (Pinocchio) to a reconstruction or to 2D tracks.
@@ -518,7 +529,9 @@ def fit(
     from .robot.fit import fit_joint_angles
     from .io.results import load_results, result_paths, save_results
 
-    _positive("--fps", fps)
+    for option, value in (("--fps", fps), ("--accel-std", accel_std), ("--jerk-std", jerk_std),
+                          ("--speed-decay", speed_decay)):
+        _positive(option, value)
     extras = _parse_extra_frames(extra_frame)
     pinhole = _camera_option(intrinsics, fov, image_size)  # --camera is the static/per-frame choice
     _check_outputs([("--out", out, result_paths(out, "joint_fit")), ("--html", html)], overwrite,
@@ -529,7 +542,9 @@ def fit(
         fit_kw["image_size"] = _image_size(image_size)
     if perspective:
         fit_kw["perspective"] = True
-    fit_kw.update(view_from=None if view_from is ViewFrom.either else view_from.value, search_ties=search_ties)
+    fit_kw.update(view_from=None if view_from is ViewFrom.either else view_from.value, search_ties=search_ties,
+                  accel_std=accel_std if motion_prior else None, jerk_std=jerk_std if motion_prior else None,
+                  speed_decay_s=speed_decay)
     urdf_path = None if urdf is None else _urdf_path(urdf)
     fit_chain = None
     if source.suffix.lower() == ".npz" and _is_result(source):

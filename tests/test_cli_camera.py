@@ -182,6 +182,42 @@ def test_fit_passes_an_image_size_alone_and_perspective_on(monkeypatch, tmp_path
     assert {k: seen[k] for k in ("image_size", "perspective", "intrinsics") if k in seen} == expected
 
 
+@pytest.mark.parametrize("options, expected", [
+    ([], dict(accel_std=3.0, jerk_std=10.0, speed_decay_s=None)),
+    (["--accel-std", "40", "--jerk-std", "500", "--speed-decay", "0.5"],
+     dict(accel_std=40.0, jerk_std=500.0, speed_decay_s=0.5)),
+    (["--no-motion-prior"], dict(accel_std=None, jerk_std=None, speed_decay_s=None)),
+])
+def test_fit_passes_the_motion_prior_options(monkeypatch, tmp_path, options, expected):
+    # the command line can set what fit_joint_angles takes (issue 21): the priors a fast robot needs
+    import chainspace.cli as cli
+    import chainspace.io.results as results
+    import chainspace.robot.fit as robot_fit
+
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def solver(*args, **kwargs):
+        seen.update(kwargs)
+        raise Stop
+
+    monkeypatch.setattr(robot_fit, "fit_joint_angles", solver)
+    monkeypatch.setattr(cli, "_is_result", lambda path: True)
+    monkeypatch.setattr(results, "load_results", lambda path: SimpleNamespace(poses=np.zeros((2, 3, 3))))
+    result = runner.invoke(app, ["fit", str(tmp_path / "t.npz"), "--urdf", "milling_arm",
+                                 "--out", str(tmp_path / "o")] + options)
+    assert result.exit_code == 3  # the stand-in solver's exception reads as an internal error
+    assert {k: seen[k] for k in expected} == expected
+
+
+@pytest.mark.parametrize("option", ["--accel-std", "--jerk-std", "--speed-decay"])
+def test_fit_refuses_a_motion_prior_that_is_not_positive(tmp_path, option):
+    result = runner.invoke(app, ["fit", str(tmp_path / "t.npz"), "--urdf", "milling_arm", option, "-1"])
+    assert result.exit_code == 2 and f"{option} must be a finite number > 0, not -1" in result.output
+
+
 def test_a_solver_without_intrinsics_is_a_clear_usage_error():
     import typer
 
