@@ -226,8 +226,12 @@ __all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"
 # the perspective fit chooses again in every frame (_start_stride)
 START_FRAMES = 100
 # a fit whose motion conflicts with its motion prior (solver.prior_conflict above this) is made again under
-# wider priors, at most this many times (_prior_matched)
-PRIOR_CONFLICT = 3.0
+# wider priors, at most this many times (_prior_matched). A fit pulled by a prior that suits the motion moves
+# slower than the prior's deviation (0.24-0.27 of it in a probe's controls); a 10 fps clip fitted at the
+# default 30 fps (the prior nine times too stiff) showed 1.27-2.02, and was 2.1-2.3 degrees off on a joint
+# reported observable at 3 (the full-range sets: widened in 21 of 128 runs, no verdict worse, 8 joints more
+# right, docs/benchmarks.md, stop 61)
+PRIOR_CONFLICT = 1.2
 MAX_WIDENINGS = 2
 FACE_ON_NOTE = "the tracked points beyond "
 PERSPECTIVE_HINT = ("a camera within a few robot reaches sees the robot in perspective, which this fit (given no "
