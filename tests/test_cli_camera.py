@@ -154,12 +154,8 @@ def test_reconstruct_and_fit_pass_the_camera_on(monkeypatch, tmp_path, command):
     assert seen["intrinsics"] == PinholeCamera.from_fov(640, 480, 50.0)
 
 
-@pytest.mark.parametrize("options, expected", [
-    (["--image-size", "640", "480"], {"image_size": (640, 480)}),  # the focal length is then fitted
-    (["--perspective"], {"perspective": True}),  # focal length and principal point fitted
-    ([], {}),  # weak perspective
-])
-def test_fit_passes_an_image_size_alone_and_perspective_on(monkeypatch, tmp_path, options, expected):
+def _fit_keywords(monkeypatch, tmp_path, options: list[str]) -> dict:
+    """The keywords ``chainspace fit`` hands fit_joint_angles for ``options``, a reconstruction stood in."""
     import chainspace.cli as cli
     import chainspace.io.results as results
     import chainspace.robot.fit as robot_fit
@@ -179,6 +175,16 @@ def test_fit_passes_an_image_size_alone_and_perspective_on(monkeypatch, tmp_path
     result = runner.invoke(app, ["fit", str(tmp_path / "t.npz"), "--urdf", "milling_arm",
                                  "--out", str(tmp_path / "o")] + options)
     assert result.exit_code == 3  # the stand-in solver's exception reads as an internal error
+    return seen
+
+
+@pytest.mark.parametrize("options, expected", [
+    (["--image-size", "640", "480"], {"image_size": (640, 480)}),  # the focal length is then fitted
+    (["--perspective"], {"perspective": True}),  # focal length and principal point fitted
+    ([], {}),  # weak perspective
+])
+def test_fit_passes_an_image_size_alone_and_perspective_on(monkeypatch, tmp_path, options, expected):
+    seen = _fit_keywords(monkeypatch, tmp_path, options)
     assert {k: seen[k] for k in ("image_size", "perspective", "intrinsics") if k in seen} == expected
 
 
@@ -190,25 +196,7 @@ def test_fit_passes_an_image_size_alone_and_perspective_on(monkeypatch, tmp_path
 ])
 def test_fit_passes_the_motion_prior_options(monkeypatch, tmp_path, options, expected):
     # the command line can set what fit_joint_angles takes (issue 21): the priors a fast robot needs
-    import chainspace.cli as cli
-    import chainspace.io.results as results
-    import chainspace.robot.fit as robot_fit
-
-    seen = {}
-
-    class Stop(Exception):
-        pass
-
-    def solver(*args, **kwargs):
-        seen.update(kwargs)
-        raise Stop
-
-    monkeypatch.setattr(robot_fit, "fit_joint_angles", solver)
-    monkeypatch.setattr(cli, "_is_result", lambda path: True)
-    monkeypatch.setattr(results, "load_results", lambda path: SimpleNamespace(poses=np.zeros((2, 3, 3))))
-    result = runner.invoke(app, ["fit", str(tmp_path / "t.npz"), "--urdf", "milling_arm",
-                                 "--out", str(tmp_path / "o")] + options)
-    assert result.exit_code == 3  # the stand-in solver's exception reads as an internal error
+    seen = _fit_keywords(monkeypatch, tmp_path, options)
     assert {k: seen[k] for k in expected} == expected
 
 
