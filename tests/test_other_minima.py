@@ -113,6 +113,28 @@ def test_the_loosest_joints_turned_lead_out_of_a_wrong_minimum_of_the_wrist(trac
     assert error_3d(best) < 0.002
 
 
+def test_on_a_long_sequence_only_the_moved_paths_that_tie_on_samples_are_refitted(track_clip):
+    # the searches' filter (300 frames: every 10th frame fitted briefly): the winner's own path and its wrist
+    # turned by 1 degree tie with it there; the arm turned 90 degrees at the shoulder, far off the tracks,
+    # does not. The filter leaves out only what is far: a shoulder turned 30 degrees slides back to the
+    # winner there, and the wrong wrist minimum above (44 noise variances above the truth's on every frame)
+    # ties on the samples. A short sequence (30 frames) is not filtered
+    from chainspace.robot.perspective import _tying
+
+    robot, q_true, _, view, tracks, w = track_clip
+    F = len(q_true)
+    free = np.ones((F, robot.nv), bool)
+    prior = _motion_prior(np.zeros((F, robot.nv), bool), 1.0 / (3.0 / FPS ** 2) ** 2, np.inf)
+    lead = _fit(robot, q_true, view, tracks, w, free, prior)
+    a = robot.angles(lead["q"])
+    near, far = a.copy(), a.copy()
+    near[:, 6] += np.radians(1.0)
+    far[:, 2] += np.radians(90.0)
+    assert _tying(robot, lead, [lead["q"], robot.from_angles(near), robot.from_angles(far)], tracks, w) == \
+        [True, True, False]
+    assert _tying(robot, {**lead, "q": lead["q"][:30]}, [robot.from_angles(far)[:30]], tracks[:30], w[:30]) == [True]
+
+
 def test_a_joint_a_frame_says_nothing_of_gets_a_vast_deviation_not_a_singular_matrix():
     from chainspace.robot.perspective import _joint_deviations
 

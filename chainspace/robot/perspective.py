@@ -755,6 +755,12 @@ def _trust(robot: RobotKinematics, best: dict, fits: list[dict], tracks: np.ndar
                       st["gauge"], lambda r: False, "", search=search_ties)
 
 
+# a long sequence's grafts (:func:`_grafted`) refitted on every frame: at most this many, those that beat the
+# winner most on every k-th frame (uncertainty._sample_step). The Panda, pinhole, K known, 300 frames: 36 grafts
+# refitted in full took 2.5 s of a 19 s fit
+GRAFT_REFITS = 3
+
+
 def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], tracks: np.ndarray,
              w: np.ndarray) -> np.ndarray | None:
     """The winner's joints up to k with another start's joints from k on (every k, every other start),
@@ -766,14 +772,19 @@ def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], track
     depth mirror. Under the winner's camera, the wrist branch that perspective prefers is then found
     by its objective (xArm7, K known, seed 0: 491.5 -> 265.3, the true motion's own minimum; wrist
     joints 120 / 83 / 101 -> 0.8 / 0.9 / 2.2 degrees). Tails are swapped per joint angle
-    (:meth:`RobotKinematics.angles`), so a continuous joint's (cos, sin) moves as one.
+    (:meth:`RobotKinematics.angles`), so a continuous joint's (cos, sin) moves as one. A sequence longer than
+    ``uncertainty.SHAKE_FRAMES``: the grafts fitted on every k-th frame first, and only the
+    :data:`GRAFT_REFITS` that beat the winner most there refitted on every frame.
     """
+    from .uncertainty import _sample_step
+
     view, free, delta = best["view"], best["free"], best["delta"]
     ones = np.ones(view.n_params, bool)
 
-    def refit(q):
-        out = _sequence_lm(robot, q, tracks, w, view, free, ones, 30, 1e-8, delta)
-        return out[0], _robust(out[2], w, delta)
+    def refit(q, sub=slice(None)):
+        out = _sequence_lm(robot, q[sub], tracks[sub], w[sub], view.take(np.arange(len(q))[sub]), free[sub], ones,
+                           30, 1e-8, delta)
+        return out[0], _robust(out[2], w[sub], delta)
 
     a_best = robot.angles(best["q"])
     grafts = []
@@ -786,6 +797,12 @@ def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], track
             a0 = a_best.copy()
             a0[:, k:] = a[:, k:]
             grafts.append(robot.from_angles(a0))
+    step = _sample_step(len(tracks))
+    if step > 1 and len(grafts) > GRAFT_REFITS:  # on every frame only those that beat the winner most on samples
+        sub = slice(None, None, step)
+        (_, base), *sampled = map_tasks(robot, lambda q: refit(q, sub), [best["q"]] + grafts)
+        grafts = [grafts[k] for k in np.argsort([o for _, o in sampled])[:GRAFT_REFITS]
+                  if sampled[k][1] < base - 1e-3 * abs(base)]
     (_, base), *refitted = map_tasks(robot, refit, [best["q"]] + grafts)
     winner = None
     for q1, obj in refitted:
@@ -888,7 +905,8 @@ def _end_moves(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.nda
     first or last window (:data:`WEAK_WINDOW_S` seconds, at most half the sequence), ramped from nothing at the
     window's inner edge to the full shift at the sequence's first or last frame (the directions the fit holds
     left as they are), each refitted smoothed with the camera briefly (20
-    iterations); the :data:`END_REFITS` distinct ones of lowest objective then refitted in full. Returns fit
+    iterations; on a long sequence only those that tie with the winner on every k-th frame, :func:`_tying`);
+    the :data:`END_REFITS` distinct ones of lowest objective then refitted in full. Returns fit
     dicts as :meth:`PerspectiveRefinement.finish` makes them, each with ``window`` (the frames moved).
 
     Why: the acceleration prior holds a path's ends from one side only, so a path can part from the true one
@@ -916,9 +934,28 @@ def _end_moves(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.nda
                 dv[a:b, k] = sign * np.radians(SHAKE_FAR_DEG) * taper
                 # (a held direction stays: the first joint seen relative to frame 0 is held at rest there)
                 moves.append(((a, b), robot.integrate(q, dv * free, clip=True)))
-    brief = map_tasks(robot, lambda m: _smoothed_refit(robot, lead, m[1], tracks, w, 20, 1e-6, window=m[0]), moves)
+    tying = _tying(robot, lead, [m[1] for m in moves], tracks, w)
+    brief = map_tasks(robot, lambda m: _smoothed_refit(robot, lead, m[1], tracks, w, 20, 1e-6, window=m[0]),
+                      [m for m, t in zip(moves, tying) if t])
     return map_tasks(robot, lambda r: _smoothed_refit(robot, lead, r["q"], tracks, w, 100, 1e-10, window=r["window"]),
                      _lowest_distinct(robot, brief, q, END_REFITS))
+
+
+def _tying(robot: RobotKinematics, lead: dict, paths: list[np.ndarray], tracks: np.ndarray,
+           w: np.ndarray) -> list[bool]:
+    """Per path (F, nq) that a search moved the winner ``lead`` to, whether it may tie with lead: on a
+    sequence longer than ``uncertainty.SHAKE_FRAMES``, fitted briefly on every k-th frame it ends within the
+    tie tolerance of lead fitted alike (:func:`chainspace.robot.uncertainty._tied_on_samples`); on a short
+    one, every path. A path that does not tie is neither a tie nor a better winner, and its refits on every
+    frame were most of a long fit's search: the Panda (K known, 300 frames, one thread), the loosest
+    joints' 63 turned paths 5.8 s of a 19 s fit."""
+    from .uncertainty import _sample_step, _tied_on_samples
+
+    step = _sample_step(len(lead["q"]))
+    if step == 1 or not paths:
+        return [True] * len(paths)
+    return _tied_on_samples(robot, dict(lead, out=(lead["q"], lead["view"])), paths, tracks, w, lead["prior"],
+                            lead["start"]["free_prior"], _noise_variance(lead, w), step)
 
 
 def _lowest_distinct(robot: RobotKinematics, fits: list[dict], q: np.ndarray, n: int) -> list[dict]:
@@ -959,8 +996,10 @@ def _loose_turns(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.n
     first; the winner ``lead``'s whole path turned on those joints by every combination of multiples of
     :data:`TURN_STEP_DEG` (all but none), each refitted smoothed with the camera under the winner's
     prior, briefly (20 iterations); the :data:`TURN_REFITS` distinct ones of lowest objective then
-    refitted in full. Returns fit dicts as :meth:`PerspectiveRefinement.finish` makes them, each with
-    ``turn`` (the joints' names and the turns in degrees).
+    refitted in full; on a long sequence only the turned paths that tie with the winner on every k-th frame
+    (:func:`_tying`). Returns fit dicts as
+    :meth:`PerspectiveRefinement.finish` makes them, each with ``turn`` (the joints' names and the turns in
+    degrees).
 
     Why: where the tracks fix a wrist's joints to a few degrees per frame, the smoothed objective can have
     minima tens of degrees apart along them, and which one the starts reach is chance: the milling arm on its
@@ -970,7 +1009,8 @@ def _loose_turns(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.n
     per frame); turned by multiples of 45 degrees, four of the 63 starts reach the true minimum's wrist twin,
     and the tie policy then keeps the true one. The windows (:func:`_weak_windows`) move the path by SHAKE_DEG,
     within the same basin, and the twins are discrete symmetries. Cost: 10-13 s on that row (300 frames, an
-    idle machine), none where no joint is loose."""
+    idle machine) before the turns were first fitted on samples; the Panda (K known, 300 frames, one thread):
+    5.8 s of a 19 s fit, 0.1 s since; none where no joint is loose."""
     from .uncertainty import AMBIGUOUS_DEG
 
     q = lead["q"]
@@ -990,9 +1030,11 @@ def _loose_turns(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.n
     def turned(turn):
         dv = np.zeros((len(q), robot.nv))
         dv[:, loose] = turn
-        return _smoothed_refit(robot, lead, robot.integrate(q, dv, clip=True), tracks, w, 20, 1e-6,
-                               turn=dict(zip(names, np.degrees(turn).round(1).tolist())))
+        return robot.integrate(q, dv, clip=True)
 
-    brief = map_tasks(robot, turned, grids)
+    paths = [turned(turn) for turn in grids]
+    tying = _tying(robot, lead, paths, tracks, w)
+    brief = map_tasks(robot, lambda k: _smoothed_refit(robot, lead, paths[k], tracks, w, 20, 1e-6, turn=dict(
+        zip(names, np.degrees(grids[k]).round(1).tolist()))), [k for k in range(len(paths)) if tying[k]])
     return map_tasks(robot, lambda r: _smoothed_refit(robot, lead, r["q"], tracks, w, 100, 1e-10, turn=r["turn"]),
                      _lowest_distinct(robot, brief, q, TURN_REFITS))

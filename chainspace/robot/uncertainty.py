@@ -651,7 +651,8 @@ def _exact_flips(robot: RobotKinematics, winner: dict, scored: list[tuple[float,
         else:  # smoothed as the winner was (a path refitted frame by frame is rough, which the prior charges)
             step = _sample_step(F)
             if step > 1:  # a long sequence: only the motions that tie on sampled frames are refitted on all
-                distinct = _tied_on_samples(robot, winner, distinct, tracks, w, prior, free, sigma ** 2, step)
+                tied = _tied_on_samples(robot, winner, distinct, tracks, w, prior, free, sigma ** 2, step)
+                distinct = [m for m, t in zip(distinct, tied) if t]
                 if not distinct:
                     return []
             ones = np.ones(view.n_params, bool)
@@ -947,16 +948,16 @@ class _Samples:
 
 
 def _tied_on_samples(robot: RobotKinematics, winner: dict, motions: list[np.ndarray], tracks: np.ndarray,
-                     w: np.ndarray, prior, free: np.ndarray, var: float, step: int) -> list[np.ndarray]:
-    """Of ``motions`` (each (F, nq)), those that, fitted on every ``step``-th frame from the winner's
-    camera (:class:`_Samples`, 20 steps as the full refit), end within the tie tolerance of the winner
+                     w: np.ndarray, prior, free: np.ndarray, var: float, step: int) -> list[bool]:
+    """Per motion of ``motions`` (each (F, nq)), whether, fitted on every ``step``-th frame from the winner's
+    camera (:class:`_Samples`, 20 steps as the full refit), it ends within the tie tolerance of the winner
     fitted alike: the ones worth refitting on every frame (the depth flips of a 300-frame UR10 took
     about 0.6 s refitted in full)."""
     samples = _Samples(robot, tracks, w, prior, free, step, winner["delta"], n_iter=20)
     _, bar = samples.bar(winner, var)
     view = winner["out"][1].take(samples.sub)
     objectives = map_tasks(robot, lambda m: samples.objective(samples.fit(m[samples.sub], view)), motions)
-    return [m for m, objective in zip(motions, objectives) if objective <= bar]
+    return [objective <= bar for objective in objectives]
 
 
 def _sampled_shakes(robot: RobotKinematics, base: dict, winner: dict, scored: list[tuple[float, dict]],
