@@ -997,9 +997,8 @@ def _loose_turns(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.n
     :data:`TURN_STEP_DEG` (all but none), each refitted smoothed with the camera under the winner's
     prior, briefly (20 iterations); the :data:`TURN_REFITS` distinct ones of lowest objective then
     refitted in full; on a long sequence only the turned paths that tie with the winner on every k-th frame
-    (:func:`_tying`). Returns fit dicts as
-    :meth:`PerspectiveRefinement.finish` makes them, each with ``turn`` (the joints' names and the turns in
-    degrees).
+    (:func:`_tying`). Returns fit dicts as :meth:`PerspectiveRefinement.finish` makes them, each with ``turn``
+    (the joints' names and the turns in degrees).
 
     Why: where the tracks fix a wrist's joints to a few degrees per frame, the smoothed objective can have
     minima tens of degrees apart along them, and which one the starts reach is chance: the milling arm on its
@@ -1010,7 +1009,7 @@ def _loose_turns(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.n
     and the tie policy then keeps the true one. The windows (:func:`_weak_windows`) move the path by SHAKE_DEG,
     within the same basin, and the twins are discrete symmetries. Cost: 10-13 s on that row (300 frames, an
     idle machine) before the turns were first fitted on samples; the Panda (K known, 300 frames, one thread):
-    5.8 s of a 19 s fit, 0.1 s since; none where no joint is loose."""
+    5.8 s of a 19 s fit, 0.7 s since; none where no joint is loose."""
     from .uncertainty import AMBIGUOUS_DEG
 
     q = lead["q"]
