@@ -103,12 +103,11 @@ Perspective (a pinhole camera)
 ------------------------------
 With ``intrinsics`` (a camera with ``K`` and ``undistort``, or a 3x3 K) the tracks are undistorted and
 the weak-perspective fit above runs on them, without its smoothed choice among candidates, and on at most
-``START_FRAMES`` (60) of them evenly spread, its starts then interpolated in time to every frame (they
-only start the fit below, which chooses every frame's branch again: on every frame the weak fit was 44 % of
-a 300-frame perspective fit's time, docs/benchmarks.md, Robot fit speed, stops 56 and 62). With the focal
-length unknown the same, except that on at most 60 frames the weak fit is the full one (smoothed,
-assessed), and on more it is made again in full on every frame where it is to be reported (no measurable
-perspective, below).
+``START_FRAMES`` (100) of them evenly spread, its starts then interpolated in time to every frame (they
+only start the fit below, which chooses every frame's branch again: the weak fit was 44 % of a 300-frame
+perspective fit's time, docs/benchmarks.md, Robot fit speed, stop 56). With the focal length unknown the
+same, except that on at most 100 frames the weak fit is the full one (smoothed, assessed), and on more
+it is made again in full on every frame where it is to be reported (no measurable perspective, below).
 Where the fit from those starts ends poor or not converged on a joint (the assessment's flags), it is
 made again from a weak fit of every frame: on fast motions the sparse frames' branch search can miss the
 motion's basin (the Kinova from below, full ranges, 150 frames, pinhole seed 66: 45-111 degrees off,
@@ -224,10 +223,8 @@ __all__ = ["JointFit", "RobotKinematics", "fit_joint_angles", "similarity_align"
 
 
 # the most frames that the weak fit starting a perspective fit looks at: it only gives starts, whose branches
-# the perspective fit chooses again in every frame (_start_stride). 100 until stop 62: at 60 the 24 rows of
-# bench_pinhole_robots.py (300 frames) kept every verdict and every joint within 0.0011 degrees, and the
-# Panda's and xArm7's fits took 19 % and 11 % less time (docs/benchmarks.md, Robot fit speed, stop 62)
-START_FRAMES = 60
+# the perspective fit chooses again in every frame (_start_stride)
+START_FRAMES = 100
 # a fit whose motion conflicts with its motion prior (solver.prior_conflict above this) is made again under
 # wider priors, at most this many times (_prior_matched). A fit pulled by a prior that suits the motion moves
 # slower than the prior's deviation (0.24-0.27 of it in a probe's controls); a 10 fps clip fitted at the
@@ -424,8 +421,7 @@ def fit_joint_angles(
         ``image_size``. It costs a perspective fit after the weak one: on close footage about the time
         of a fit given the intrinsics; where the weak fit already explains the tracks and its perspective
         refit measures nothing (a far camera), about 1.2 times the weak fit's time on up to 100 frames
-        and 1.4 times on more (measured when the weak fit that starts it saw 100 of them; it sees 60 now,
-        and the one reported all).
+        and 1.4 times on more (the weak fit that starts it sees 100 of them, and the one reported all).
         False: weak perspective (``intrinsics`` and ``image_size`` must then be None).
     search_ties
         Also search beyond the fit's own candidates for motions that fit the tracks as well (depth flips
