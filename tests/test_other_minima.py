@@ -162,3 +162,34 @@ def test_a_fit_with_the_wrist_hidden_for_nine_frames_returns():
         warnings.simplefilter("ignore")
         fit = fit_joint_angles(reconstruct(tracks, chain, seed=1), intrinsics=trial.intrinsics)
     assert fit.converged.all() and np.isfinite(fit.q).all()
+
+
+def test_on_a_long_sequence_a_graft_is_refitted_only_where_it_nears_the_winner_on_samples(track_clip, monkeypatch):
+    # the wrong wrist minimum above as the winner, the true motion as another start: its tails grafted onto the
+    # winner beat it on every 10th frame and are refitted on all (the result: the true motion's minimum). Within a
+    # noise variance, the graft screen is stricter than the tie test, which lets the wrong minimum tie with the
+    # truth there
+    import chainspace.robot.perspective as perspective
+
+    robot, q_true, positions, view, tracks, w = track_clip
+    F = len(q_true)
+    free = np.ones((F, robot.nv), bool)
+    prior = _motion_prior(np.zeros((F, robot.nv), bool), 1.0 / (3.0 / FPS ** 2) ** 2, np.inf)
+    a = robot.angles(q_true)
+    a[:, 4:7] += np.radians([-100.0, -30.0, 90.0])
+    wrong = _fit(robot, robot.from_angles(a), view, tracks, w, free, prior)
+    truth = _fit(robot, q_true, view, tracks, w, free, prior)
+    unsmoothed = [dict(r, prior=None) for r in (wrong, truth)]
+    assert perspective._tying(robot, unsmoothed[1], [wrong["q"]], tracks, w) == [True]  # a tie on the samples
+    assert perspective._tying(robot, unsmoothed[1], [wrong["q"]], tracks, w, perspective.GRAFT_VARIANCES) == [False]
+    assert perspective._tying(robot, unsmoothed[0], [truth["q"]], tracks, w, perspective.GRAFT_VARIANCES) == [True]
+    refitted = []
+    real_map = perspective.map_tasks
+    monkeypatch.setattr(perspective, "map_tasks", lambda rb, fn, items, *s: refitted.append(len(items)) or
+                        real_map(rb, fn, items, *s))
+    q = perspective._grafted(robot, dict(wrong, view=wrong["view"]), [q_true], tracks, w)
+    assert q is not None
+    d = np.degrees(robot.wrap_angles(robot.angles(q) - robot.angles(truth["q"])))
+    # the true motion's basin (the wrong one is 30-100 degrees off), unsmoothed: finish smooths the graft
+    assert np.sqrt(np.mean(d ** 2, axis=0)).max() < 20.0
+    assert refitted[-1] < robot.nv  # the winner and fewer than its nv - 1 grafts

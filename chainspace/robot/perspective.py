@@ -755,6 +755,19 @@ def _trust(robot: RobotKinematics, best: dict, fits: list[dict], tracks: np.ndar
                       st["gauge"], lambda r: False, "", search=search_ties)
 
 
+# a graft fitted on every k-th frame (:func:`_grafted`) is refitted on every frame where it ends there as another
+# motion than the winner's, within this many noise variances of the winner fitted alike. Only a graft that beats
+# the winner counts. On the Panda (K known, 300 frames) 33 of its 35 grafts came back to the winner's motion on the
+# samples (and on every frame, 0.03-0.5 px^2 below it in 3600: not a win); the other two were 1500 and 7800 px^2
+# above it there. On the milling arm on its track (K known, 300 frames) the grafts more than a variance above the
+# winner on the samples were 1-2600 px^2 above it on every frame; four of those that came back to its motion
+# there (1.3-2.7 degrees away) went on to fits 6-9 px^2 lower on every frame (0.1-0.2 %, within the tied basin of
+# its loose wrist, which is flagged either way). Keeping just the three that beat the winner most on the samples
+# (tried at stop 62), the milling arm on its track with lens distortion (150 frames) reported its wrist's other
+# tied basin, 84-104 degrees off (flagged, 3D error 2.3 % of reach against 0.12 %)
+GRAFT_VARIANCES = 1.0
+
+
 def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], tracks: np.ndarray,
              w: np.ndarray) -> np.ndarray | None:
     """The winner's joints up to k with another start's joints from k on (every k, every other start),
@@ -766,10 +779,10 @@ def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], track
     depth mirror. Under the winner's camera, the wrist branch that perspective prefers is then found
     by its objective (xArm7, K known, seed 0: 491.5 -> 265.3, the true motion's own minimum; wrist
     joints 120 / 83 / 101 -> 0.8 / 0.9 / 2.2 degrees). Tails are swapped per joint angle
-    (:meth:`RobotKinematics.angles`), so a continuous joint's (cos, sin) moves as one. Every graft is refitted
-    on every frame: screened on every 10th frame of a 150-frame clip (the three that beat the winner most
-    there, tried at stop 62), the milling arm on its track with lens distortion reported its wrist's other
-    tied basin, 84-104 degrees off (flagged, 3D error 2.3 % of reach against 0.12 %).
+    (:meth:`RobotKinematics.angles`), so a continuous joint's (cos, sin) moves as one. On a long sequence
+    only the grafts that end within :data:`GRAFT_VARIANCES` of the winner on every k-th frame, as another
+    motion (:func:`_tying`, unsmoothed as the refits), are refitted on every frame (why: beside
+    GRAFT_VARIANCES).
     """
     view, free, delta = best["view"], best["free"], best["delta"]
     ones = np.ones(view.n_params, bool)
@@ -789,6 +802,8 @@ def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], track
             a0 = a_best.copy()
             a0[:, k:] = a[:, k:]
             grafts.append(robot.from_angles(a0))
+    grafts = [g for g, t in zip(grafts, _tying(robot, dict(best, prior=None, start=dict(best["start"], free_prior=free)),
+                                               grafts, tracks, w, GRAFT_VARIANCES, new_only=True)) if t]
     (_, base), *refitted = map_tasks(robot, refit, [best["q"]] + grafts)
     winner = None
     for q1, obj in refitted:
@@ -928,20 +943,21 @@ def _end_moves(robot: RobotKinematics, lead: dict, tracks: np.ndarray, w: np.nda
 
 
 def _tying(robot: RobotKinematics, lead: dict, paths: list[np.ndarray], tracks: np.ndarray,
-           w: np.ndarray) -> list[bool]:
+           w: np.ndarray, variances: float | None = None, new_only: bool = False) -> list[bool]:
     """Per path (F, nq) that a search moved the winner ``lead`` to, whether it may tie with lead: on a
     sequence longer than ``uncertainty.SHAKE_FRAMES``, fitted briefly on every k-th frame it ends within the
     tie tolerance of lead fitted alike (:func:`chainspace.robot.uncertainty._tied_on_samples`); on a short
     one, every path. A path that does not tie is neither a tie nor a better winner, and its refits on every
     frame were most of a long fit's search: the Panda (K known, 300 frames, one thread), the loosest
-    joints' 63 turned paths 5.8 s of a 19 s fit."""
+    joints' 63 turned paths 5.8 s of a 19 s fit. ``variances``: the tolerance in noise variances (default the
+    tie tolerance); ``new_only``: a path that ends there as lead's own motion does not tie."""
     from .uncertainty import _sample_step, _tied_on_samples
 
     step = _sample_step(len(lead["q"]))
     if step == 1 or not paths:
         return [True] * len(paths)
     return _tied_on_samples(robot, dict(lead, out=(lead["q"], lead["view"])), paths, tracks, w, lead["prior"],
-                            lead["start"]["free_prior"], _noise_variance(lead, w), step)
+                            lead["start"]["free_prior"], _noise_variance(lead, w), step, variances, new_only)
 
 
 def _lowest_distinct(robot: RobotKinematics, fits: list[dict], q: np.ndarray, n: int) -> list[dict]:

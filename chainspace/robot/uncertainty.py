@@ -939,25 +939,30 @@ class _Samples:
     def objective(self, fit: tuple) -> float:
         return _fit_objective(self.robot, fit[0], fit[2], self.w, self.delta, self.prior)
 
-    def bar(self, winner: dict, var: float) -> tuple[tuple, float]:
-        """The winner fitted on these frames, and the highest objective that ties with it."""
+    def bar(self, winner: dict, var: float, variances: float | None = None) -> tuple[tuple, float]:
+        """The winner fitted on these frames, and the highest objective that ties with it (within
+        ``variances`` noise variances var; default the tie tolerance)."""
         from .candidates import TIE_VARIANCES
 
         reference = self.fit(winner["out"][0][self.sub], winner["out"][1].take(self.sub))
-        return reference, self.objective(reference) + TIE_VARIANCES * var
+        return reference, self.objective(reference) + (TIE_VARIANCES if variances is None else variances) * var
 
 
 def _tied_on_samples(robot: RobotKinematics, winner: dict, motions: list[np.ndarray], tracks: np.ndarray,
-                     w: np.ndarray, prior, free: np.ndarray, var: float, step: int) -> list[bool]:
+                     w: np.ndarray, prior, free: np.ndarray, var: float, step: int,
+                     variances: float | None = None, new_only: bool = False) -> list[bool]:
     """Per motion of ``motions`` (each (F, nq)), whether, fitted on every ``step``-th frame from the winner's
-    camera (:class:`_Samples`, 20 steps as the full refit), it ends within the tie tolerance of the winner
-    fitted alike: the ones worth refitting on every frame (the depth flips of a 300-frame UR10 took
-    about 0.6 s refitted in full)."""
+    camera (:class:`_Samples`, 20 steps as the full refit), it ends within the tie tolerance (or
+    ``variances`` noise variances var) of the winner fitted alike, and with ``new_only`` as another motion
+    than that (:func:`chainspace.robot.candidates._same_motion`): the ones worth refitting on every frame
+    (the depth flips of a 300-frame UR10 took about 0.6 s refitted in full)."""
+    from .candidates import _same_motion
+
     samples = _Samples(robot, tracks, w, prior, free, step, winner["delta"], n_iter=20)
-    _, bar = samples.bar(winner, var)
+    reference, bar = samples.bar(winner, var, variances)
     view = winner["out"][1].take(samples.sub)
-    objectives = map_tasks(robot, lambda m: samples.objective(samples.fit(m[samples.sub], view)), motions)
-    return [objective <= bar for objective in objectives]
+    fits = map_tasks(robot, lambda m: samples.fit(m[samples.sub], view), motions)
+    return [samples.objective(f) <= bar and not (new_only and _same_motion(robot, f[0], reference[0])) for f in fits]
 
 
 def _sampled_shakes(robot: RobotKinematics, base: dict, winner: dict, scored: list[tuple[float, dict]],
