@@ -95,6 +95,33 @@ def test_a_weak_start_on_every_third_frame_still_gives_the_exact_angles(arm, arm
     assert np.nanmax(np.abs(fit.reprojected() - arm_trial.tracks)) < 1e-2
 
 
+def test_on_a_long_sequence_the_starts_are_ranked_on_samples_and_the_kept_ones_made_on_every_frame(
+        arm, arm_trial, monkeypatch):
+    # the camera stage of every start but the first runs on every k-th frame (here made to, with 30 frames) only to
+    # rank them; those kept are put through it again on every frame, and the fit is still exact
+    import chainspace.robot.uncertainty as uncertainty
+    from chainspace.robot.perspective import PerspectiveRefinement
+
+    monkeypatch.setattr(uncertainty, "SHAKE_FRAMES", 10)
+    calls = []
+    stage = PerspectiveRefinement.camera_start
+
+    def recorded(self, st, focals, frames=None):
+        out = stage(self, st, focals, frames)
+        calls.append((None if frames is None else len(frames), len(out[2])))
+        return out
+
+    monkeypatch.setattr(PerspectiveRefinement, "camera_start", recorded)
+    fit = fit_joint_angles(_rough_reconstruction(arm_trial), chain=arm, tracks=arm_trial.tracks,
+                           intrinsics=arm_trial.intrinsics)
+    sampled = [c for c in calls if c[0] is not None]
+    assert sampled and all(c == (10, 10) for c in sampled)  # every third frame, and the start's q on them
+    assert calls[0] == (None, 30)  # the first start on every frame, always refined
+    assert calls[1:len(sampled) + 1] == sampled  # the others ranked first, then the three kept (MAX_STARTS - 1
+    assert calls[len(sampled) + 1:len(sampled) + 4] == [(None, 30)] * 3  # given ones and the best turned one)
+    assert _worst_deg(fit, arm_trial) < 0.05
+
+
 def test_a_doubtful_fit_from_a_sparse_start_is_made_again_from_every_frame(arm, arm_fit, arm_trial, monkeypatch):
     # a joint flagged poor fit or not converged sends the fit back to a weak start on every frame; with every
     # joint made to look poorly fitted, the result is the fit from every frame's start (arm_fit: 30 frames,
