@@ -773,7 +773,7 @@ def _trust(robot: RobotKinematics, best: dict, fits: list[dict], tracks: np.ndar
 # the winner counts. On the Panda (K known, 300 frames) 33 of its 35 grafts came back to the winner's motion on the
 # samples (and on every frame, 0.03-0.5 px^2 below it in 3600: not a win); the other two were 1500 and 7800 px^2
 # above it there. On the milling arm on its track (K known, 300 frames) the grafts more than a variance above the
-# winner on the samples were 1-2600 px^2 above it on every frame; four of those that came back to its motion
+# winner on the samples were 0.9-2600 px^2 above it on every frame; four of those that came back to its motion
 # there (1.3-2.7 degrees away) went on to fits 6-9 px^2 lower on every frame (0.1-0.2 %, within the tied basin of
 # its loose wrist, which is flagged either way). Keeping just the three that beat the winner most on the samples
 # (tried at stop 62), the milling arm on its track with lens distortion (150 frames) reported its wrist's other
@@ -815,8 +815,9 @@ def _grafted(robot: RobotKinematics, best: dict, others: list[np.ndarray], track
             a0 = a_best.copy()
             a0[:, k:] = a[:, k:]
             grafts.append(robot.from_angles(a0))
-    grafts = [g for g, t in zip(grafts, _tying(robot, dict(best, prior=None, start=dict(best["start"], free_prior=free)),
-                                               grafts, tracks, w, GRAFT_VARIANCES, new_only=True)) if t]
+    unsmoothed = dict(best, prior=None, start=dict(best["start"], free_prior=free))  # screened as refitted
+    near = _tying(robot, unsmoothed, grafts, tracks, w, GRAFT_VARIANCES, new_only=True)
+    grafts = [g for g, t in zip(grafts, near) if t]
     (_, base), *refitted = map_tasks(robot, refit, [best["q"]] + grafts)
     winner = None
     for q1, obj in refitted:
