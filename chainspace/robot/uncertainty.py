@@ -408,13 +408,12 @@ def poor_fit_joints(robot: RobotKinematics, q: np.ndarray, rn: np.ndarray, w: np
         return np.zeros(robot.nv, bool), [], ratio
     moves = _point_movers(robot, q)
     joints = moves[bad].any(0)
-    if (~moves[bad].any(1)).any():  # a base point missed: the camera is off, so is every joint
-        joints[:] = True
-    # missed points that no one joint moves (on two legs of a tree): no one wrong path explains them all, but the
-    # camera they share does, and then every joint is in doubt. The Solo12 through a weak camera from above (full
-    # ranges, seed 85): points of the front and hind left legs 12 times further off than the noise allows, the
-    # front right leg fitting its own tracks 79-121 degrees off and reported observable; a fit from the true points
-    # ended no better (the search missed the true basin: 6243 px^2 where the noise gives about 1000)
+    # missed points that no one joint moves (a base point, which no joint moves; points on two legs of a tree): no
+    # one wrong path explains them all, but the camera they share does, and then every joint is in doubt. The
+    # Solo12 through a weak camera from above (full ranges, seed 85): points of the front and hind left legs 12
+    # times further off than the noise allows, the front right leg fitting its own tracks 79-121 degrees off and
+    # reported observable; a fit from the true points ended no better (the search missed the true basin: 6243
+    # px^2 where the noise gives about 1000)
     if not moves[bad].all(0).any():
         joints[:] = True
     # and the joints beyond a missed point: each turns its link relative to a parent the fit placed wrong
